@@ -1,0 +1,146 @@
+"""AgentTaskEnv: one agent on one task, over either physics backend, with pure reset/step."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from hdt.envs.core import State
+from hdt.envs.model import AGENT_PREFIX, build_model
+from hdt.envs.physics import Backend, PhysicsState, make_physics
+from hdt.envs.spec import AgentSpec
+from hdt.envs.tasks import Task
+
+
+def _where(c, a, b):
+  return jax.tree.map(lambda x, y: jnp.where(c, x, y), a, b)
+
+
+class AgentTaskEnv:
+  """Pure, vmappable environment. Episodes end on a time limit, a fall or a solved task, and reset
+  inside ``step`` (the LL reach task keeps the robot's state unless it fell or a ``reset_prob`` coin
+  says otherwise, and draws a new goal)."""
+
+  def __init__(self, agent: AgentSpec, task: Task, backend: Backend = "auto"):
+    if task.family and task.family != agent.family:
+      raise ValueError(f"task {task.name!r} is a {task.family} task but agent {agent.name!r} is a "
+                       f"{agent.family} agent")
+    self.agent, self.task = agent, task
+    self.mj_model = m = build_model(agent, task)
+    self.physics = make_physics(m, agent.frame_skip, backend)
+    self.backend = self.physics.name
+    self.dt = float(m.opt.timestep * agent.frame_skip)
+    self.horizon = task.horizon(agent)
+    self.action_size = m.nu
+
+    # Agent degrees of freedom and sensors, found by the prefix the composition gave them.
+    joints = [j for j in range(m.njnt) if m.joint(j).name.startswith(AGENT_PREFIX)]
+    qpos_idx, qvel_idx, noise = [], [], []
+    for j in joints:
+      nq = {0: 7, 1: 4, 2: 1, 3: 1}[int(m.jnt_type[j])]
+      nv = {0: 6, 1: 3, 2: 1, 3: 1}[int(m.jnt_type[j])]
+      qpos_idx += range(m.jnt_qposadr[j], m.jnt_qposadr[j] + nq)
+      qvel_idx += range(m.jnt_dofadr[j], m.jnt_dofadr[j] + nv)
+      noise += [0.0] * nq if m.jnt_type[j] in (0, 1) else [1.0]  # no noise on free/ball joints
+    self._qpos_idx, self._qvel_idx = np.array(qpos_idx), np.array(qvel_idx)
+    self._qpos_noise = np.zeros(m.nq, np.float32)
+    self._qpos_noise[self._qpos_idx] = noise
+    self._qvel_noise = np.zeros(m.nv, np.float32)
+    self._qvel_noise[self._qvel_idx] = 1.0
+    # Start inside the joint limits (the Gym ant's ankles rest outside theirs at qpos0, which makes
+    # the first landing violent and chaotic).
+    self._qpos_lo = np.full(m.nq, -np.inf, np.float32)
+    self._qpos_hi = np.full(m.nq, np.inf, np.float32)
+    for j in joints:
+      if m.jnt_limited[j] and m.jnt_type[j] in (2, 3):
+        self._qpos_lo[m.jnt_qposadr[j]], self._qpos_hi[m.jnt_qposadr[j]] = m.jnt_range[j]
+    self._qpos0 = np.clip(np.array(m.qpos0, np.float32), self._qpos_lo, self._qpos_hi)
+
+    def sensor(name):
+      i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)
+      return None if i < 0 else np.arange(m.sensor_adr[i], m.sensor_adr[i] + m.sensor_dim[i])
+    self._sensor = {name: sensor(s) for name, s in [
+        ("point", task.point_sensor), ("tip", AGENT_PREFIX + "goal_point"),
+        ("block", "block/block_pos"), ("block_vel", "block/block_vel")] if sensor(s) is not None}
+    names = [m.sensor(i).name for i in range(m.nsensor)]
+    self._touch = np.concatenate([sensor(n) for n in names if n.startswith(AGENT_PREFIX + "touch")]
+                                 or [np.zeros(0, int)])
+    self._rays = np.concatenate([sensor(n) for n in names if n.startswith(AGENT_PREFIX + "ray")]
+                                or [np.zeros(0, int)])
+    lo, hi = m.actuator_ctrlrange.T
+    self._ctrl_lo, self._ctrl_hi = np.float32(lo), np.float32(hi)
+
+    s = jax.eval_shape(self.reset, jax.random.PRNGKey(0))
+    self.observation_size = s.obs.shape[-1]
+    self.obs_lo_size, self.obs_hi_size = s.obs_lo.shape[-1], s.obs_hi.shape[-1]
+
+  # -- observations ------------------------------------------------------------------------------
+  def quantities(self, ps: PhysicsState) -> dict[str, jax.Array]:
+    q = {k: ps.sensordata[idx] for k, idx in self._sensor.items()}
+    q["z"] = q["tip"][2]
+    q = {k: (v[:2] if k != "z" else v) for k, v in q.items()}
+    return q
+
+  def obs_lo(self, ps: PhysicsState) -> jax.Array:
+    qp, qv = ps.qpos[self._qpos_idx], ps.qvel[self._qvel_idx]
+    qp = jnp.concatenate([jnp.cos(qp), jnp.sin(qp)]) if self.agent.trig_angles else qp[self.agent.qpos_skip:]
+    touch = jnp.clip(ps.sensordata[self._touch] / self.agent.contact_clip, 0.0, 1.0)
+    return jnp.concatenate([qp, qv, touch, ps.sensordata[self._rays]])
+
+  def _observe(self, ps, q, t):
+    lo, hi = self.obs_lo(ps), self.task.obs_hi(q, t)
+    return lo, hi, self.task.policy_obs(lo, hi, t)
+
+  def fell(self, q) -> jax.Array:
+    if self.agent.fall_z is None:
+      return jnp.bool_(False)
+    lo, hi = self.agent.fall_z
+    return (q["z"] < lo) | (q["z"] > hi)
+
+  # -- reset / step ------------------------------------------------------------------------------
+  def reset(self, key: jax.Array) -> State:
+    key, k_pos, k_vel, k_task = jax.random.split(key, 4)
+    n = self.agent.init_noise
+    qpos = self._qpos0 + self._qpos_noise * jax.random.uniform(k_pos, self._qpos0.shape, minval=-n, maxval=n)
+    qpos = jnp.clip(qpos, self._qpos_lo, self._qpos_hi)
+    qvel = self._qvel_noise * n * jax.random.normal(k_vel, self._qvel_noise.shape)
+    ps = self.physics.forward(jnp.float32(0.0), qpos, qvel)
+    q = self.quantities(ps)
+    t = self.task.sample(k_task, self.agent, q)
+    lo, hi, obs = self._observe(ps, q, t)
+    zero = jnp.float32(0.0)
+    _, _, _, metrics = self.task.reward(k_task, self.agent, q, q, jnp.zeros(self.action_size), t, self.dt)
+    metrics = {k: jnp.zeros_like(v, jnp.float32) for k, v in metrics.items()} | {"fall": zero}
+    return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=obs, reward=zero, done=zero,
+                 discount=jnp.float32(1.0), task={"t": t, "steps": jnp.int32(0), "init": ps},
+                 metrics=metrics, key=key)
+
+  def step(self, state: State, action: jax.Array) -> State:
+    key, k_task, k_reset, k_new = jax.random.split(state.key, 4)
+    action = jnp.clip(action, -1.0, 1.0)
+    ctrl = self._ctrl_lo + (action + 1.0) * 0.5 * (self._ctrl_hi - self._ctrl_lo)
+    ps = self.physics.step(state.physics, ctrl)
+    q_prev, q = self.quantities(state.physics), self.quantities(ps)
+    reward, solved, t, metrics = self.task.reward(k_task, self.agent, q_prev, q, action,
+                                                  state.task["t"], self.dt)
+    fell = self.fell(q)
+    steps = state.task["steps"] + 1
+    terminal = fell | solved
+    timeout = steps >= self.horizon
+    done = terminal | timeout
+    _, _, next_obs = self._observe(ps, q, t)
+
+    # Auto-reset: a new episode starts from the cached initial physics or from where the robot is.
+    reset_physics = done & self.task.physics_reset(k_reset, self.agent, fell, timeout)
+    ps = _where(reset_physics, state.task["init"], ps)
+    q = self.quantities(ps)
+    t = _where(done, self.task.sample(k_new, self.agent, q), t)
+    lo, hi, obs = self._observe(ps, q, t)
+    metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()} | {"fall": fell.astype(jnp.float32)}
+    return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=next_obs,
+                 reward=jnp.asarray(reward, jnp.float32), done=done.astype(jnp.float32),
+                 discount=1.0 - terminal.astype(jnp.float32),
+                 task={"t": t, "steps": jnp.where(done, 0, steps), "init": state.task["init"]},
+                 metrics=metrics, key=key)

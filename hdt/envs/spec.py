@@ -1,0 +1,40 @@
+"""AgentSpec: what distinguishes one morphology from another (besides its MJCF file)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+XML_DIR = Path(__file__).resolve().parents[2] / "xml"
+
+
+@dataclasses.dataclass(frozen=True)
+class AgentSpec:
+  name: str
+  family: str  # "nav" (goal space = torso xy) or "manip" (goal space = end-effector xy)
+  xml: str  # file name in xml/agents/
+  frame_skip: int
+  k: int  # LL steps per HL action
+  delta_max: float  # goal box half-width per axis (m)
+  ll_horizon: int  # LL training episode length
+  reset_prob: float  # chance of a physics reset at the end of an LL episode
+  qpos_skip: int = 0  # leading agent qpos entries left out of obs_lo (global x, y)
+  trig_angles: bool = False  # observe hinge angles as (cos, sin)
+  fall_z: tuple[float, float] | None = None  # torso height bounds; outside them the agent has fallen
+  contact_clip: float = 10.0  # touch readings (N) are scaled by 1/contact_clip and clipped to [0, 1]
+  ctrl_cost: float = 0.5  # lambda of the LL action penalty
+  survive_bonus: float = 0.0  # legged LL reward per step while not fallen
+  reach_eps: float = 0.5  # LL goal counted as reached within this distance (m)
+  init_noise: float = 0.1  # uniform qpos / normal qvel noise at reset
+  success_bonus: float = 0.0  # manip LL: c in c * 1{|g - tip| < eps}
+
+  @property
+  def xml_path(self) -> Path:
+    return XML_DIR / "agents" / self.xml
+
+  @property
+  def legged(self) -> bool:
+    return self.fall_z is not None
+
+  def replace(self, **changes) -> "AgentSpec":
+    return dataclasses.replace(self, **changes)

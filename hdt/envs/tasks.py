@@ -1,0 +1,235 @@
+"""Tasks of SPEC 3: the LL goal-reaching task and the HL tasks, as data plus pure reward functions.
+
+A task sees the physics only through a few named quantities ``q`` (goal-space point, torso height,
+end effector, block), so one task serves every agent of its family.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hdt.envs.spec import AgentSpec
+
+Quantities = dict[str, jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+  name: str = ""
+  family: str = ""  # "nav" or "manip"
+  hl_horizon: int = 50  # HL steps per episode; LL steps = hl_horizon * k
+  point_sensor: str = "agent/goal_point"  # sensor giving the goal-space point
+
+  # -- scene -------------------------------------------------------------------------------------
+  def scene(self, agent: AgentSpec) -> str:
+    return "plane.xml" if agent.family == "nav" else "arena.xml"
+
+  objects: tuple[tuple[str, str], ...] = ()  # (xml file in xml/scenes, prefix) attached to the world
+  tools: tuple[tuple[str, str], ...] = ()  # attached at the agent's goal_point site
+  rangefinders: int = 0  # rays around a legged agent's torso (Steps)
+
+  def customize(self, spec) -> None:
+    """Edit the composed mujoco.MjSpec before compiling (e.g. move a marker)."""
+
+  # -- episodes ----------------------------------------------------------------------------------
+  def horizon(self, agent: AgentSpec) -> int:
+    return self.hl_horizon * agent.k
+
+  def sample(self, key: jax.Array, agent: AgentSpec, q: Quantities) -> dict[str, Any]:
+    """Task randomness at the start of an episode."""
+    return {}
+
+  def physics_reset(self, key, agent: AgentSpec, fell, timeout):
+    """Whether an ended episode also resets the robot (HL tasks: always)."""
+    return jnp.bool_(True)
+
+  def obs_hi(self, q: Quantities, t: dict) -> jax.Array:
+    raise NotImplementedError
+
+  def policy_obs(self, obs_lo, obs_hi, t) -> jax.Array:
+    """The flat observation SAC sees on this task (the Full baseline: both levels)."""
+    return jnp.concatenate([obs_lo, obs_hi])
+
+  def reward(self, key, agent: AgentSpec, q_prev: Quantities, q: Quantities, action, t, dt):
+    """Returns (reward, solved (terminal), task state, metrics)."""
+    raise NotImplementedError
+
+
+@dataclasses.dataclass(frozen=True)
+class Reach(Task):
+  """LL goal reaching: a relative goal z in the agent's goal box (SPEC 3)."""
+
+  name: str = "reach"
+
+  def horizon(self, agent):
+    return agent.ll_horizon
+
+  def sample(self, key, agent, q):
+    z = jax.random.uniform(key, (2,), minval=-agent.delta_max, maxval=agent.delta_max)
+    return {"goal": q["point"] + z}
+
+  def physics_reset(self, key, agent, fell, timeout):
+    return fell | (jax.random.uniform(key) < agent.reset_prob)
+
+  def obs_hi(self, q, t):
+    return q["point"]
+
+  def policy_obs(self, obs_lo, obs_hi, t):
+    return jnp.concatenate([obs_lo, t["goal"] - obs_hi[:2]])
+
+  def reward(self, key, agent, q_prev, q, action, t, dt):
+    ctrl_cost = agent.ctrl_cost * jnp.sum(jnp.square(action))
+    dist = jnp.linalg.norm(t["goal"] - q["point"])
+    if agent.family == "nav":
+      to_goal = t["goal"] - q_prev["point"]
+      progress = jnp.dot(q["point"] - q_prev["point"], to_goal) / (jnp.linalg.norm(to_goal) + 1e-8)
+      r = progress / dt - ctrl_cost + agent.survive_bonus
+    else:
+      r = -dist - ctrl_cost + agent.success_bonus * (dist < agent.reach_eps)
+    return r, jnp.bool_(False), t, {"goal_dist": dist, "success": (dist < agent.reach_eps).astype(jnp.float32)}
+
+
+def _disc(key, radius):
+  k1, k2 = jax.random.split(key)
+  r = radius * jnp.sqrt(jax.random.uniform(k1))
+  a = jax.random.uniform(k2, maxval=2 * jnp.pi)
+  return jnp.stack([r * jnp.cos(a), r * jnp.sin(a)])
+
+
+@dataclasses.dataclass(frozen=True)
+class Waypoint(Task):
+  """Reach waypoints drawn in a disc; a new one appears as soon as one is reached."""
+
+  name: str = "waypoint"
+  family: str = "nav"
+  hl_horizon: int = 50
+  radius: float = 8.0
+  reach_dist: float = 0.5
+
+  def sample(self, key, agent, q):
+    return {"waypoint": _disc(key, self.radius)}
+
+  def obs_hi(self, q, t):
+    return jnp.concatenate([q["point"], t["waypoint"]])
+
+  def reward(self, key, agent, q_prev, q, action, t, dt):
+    dist = jnp.linalg.norm(t["waypoint"] - q["point"])
+    hit = dist < self.reach_dist
+    t = {"waypoint": jnp.where(hit, _disc(key, self.radius), t["waypoint"])}
+    return -0.1 * dist + 100.0 * hit, jnp.bool_(False), t, {"waypoints": hit.astype(jnp.float32), "dist": dist}
+
+
+# U-maze path cells (row, col) from the start r to the end g of SPEC 3's layout.
+_U_PATH = ((1, 1), (1, 2), (1, 3), (2, 3), (3, 3), (3, 2), (3, 1))
+
+
+@dataclasses.dataclass(frozen=True)
+class Maze(Task):
+  """Sparse U-maze: +1000 on entering the goal cell, which ends the episode."""
+
+  name: str = "maze"
+  family: str = "nav"
+  hl_horizon: int = 100
+  cell: float = 8.0
+  goal: str = "sample"  # "sample": any of the six cells past the start; "end": the end cell
+  bonus: float = 1000.0
+  scene_file: str = "maze.xml"
+
+  def __post_init__(self):
+    if self.goal not in ("sample", "end"):
+      raise ValueError(f"maze goal must be 'sample' or 'end', got {self.goal!r}")
+
+  def scene(self, agent):
+    return self.scene_file
+
+  @property
+  def cells(self) -> np.ndarray:
+    """Centres (x, y) of the path cells after the start, the end cell last."""
+    return np.array([[(c - 1) * self.cell, (r - 1) * self.cell] for r, c in _U_PATH[1:]], np.float32)
+
+  def sample(self, key, agent, q):
+    cells = jnp.asarray(self.cells)
+    i = jax.random.randint(key, (), 0, len(cells)) if self.goal == "sample" else len(cells) - 1
+    return {"goal": cells[i]}
+
+  def obs_hi(self, q, t):
+    return jnp.concatenate([q["point"], t["goal"]])
+
+  def reward(self, key, agent, q_prev, q, action, t, dt):
+    inside = jnp.all(jnp.abs(q["point"] - t["goal"]) < self.cell / 2)
+    return self.bonus * inside, inside, t, {"success": inside.astype(jnp.float32),
+                                            "dist": jnp.linalg.norm(q["point"] - t["goal"])}
+
+
+@dataclasses.dataclass(frozen=True)
+class Steps(Maze):
+  """The half-size U-maze with low barriers; legged agents see 16 rangefinders."""
+
+  name: str = "steps"
+  cell: float = 4.0
+  goal: str = "end"
+  scene_file: str = "steps.xml"
+  rangefinders: int = 16
+
+
+@dataclasses.dataclass(frozen=True)
+class Push(Task):
+  """Push the block to its destination: -distance per step, +200 and done within 0.025 m."""
+
+  name: str = "push1"
+  family: str = "manip"
+  hl_horizon: int = 60
+  destination: tuple[float, float] = (-0.10, -0.08)
+  tolerance: float = 0.025
+  bonus: float = 200.0
+  objects: tuple = (("block.xml", "block/"),)
+
+  def customize(self, spec):
+    spec.site("block/destination").pos = [*self.destination, 0.001]
+
+  def obs_hi(self, q, t):
+    return jnp.concatenate([q["point"], q["block"], q["block_vel"]])
+
+  def reward(self, key, agent, q_prev, q, action, t, dt):
+    dist = jnp.linalg.norm(q["block"] - jnp.asarray(self.destination))
+    solved = dist < self.tolerance
+    return -dist + self.bonus * solved, solved, t, {"success": solved.astype(jnp.float32), "dist": dist}
+
+
+@dataclasses.dataclass(frozen=True)
+class Insert(Task):
+  """Insert the peg on the end effector through the slot in the wall at y = -0.18."""
+
+  name: str = "insert"
+  family: str = "manip"
+  hl_horizon: int = 50
+  point_sensor: str = "peg/peg_tip"
+  objects: tuple = (("slot_wall.xml", "slot/"),)
+  tools: tuple = (("peg.xml", "peg/"),)
+  target: tuple[float, float] = (0.0, -0.19)
+
+  def obs_hi(self, q, t):
+    return jnp.concatenate([q["point"], q["tip"]])
+
+  def reward(self, key, agent, q_prev, q, action, t, dt):
+    peg = q["point"]
+    solved = (jnp.abs(peg[0]) < 0.05) & (peg[1] < self.target[1])
+    d2 = jnp.sum(jnp.square(peg - jnp.asarray(self.target)))
+    return -20.0 * d2 + 50.0 * solved, solved, t, {"success": solved.astype(jnp.float32),
+                                                   "dist": jnp.sqrt(d2)}
+
+
+TASKS = {
+    "reach": Reach,
+    "waypoint": Waypoint,
+    "maze": Maze,
+    "steps": Steps,
+    "push1": Push,
+    "push2": lambda **kw: Push(**{"name": "push2", "destination": (-0.12, -0.13), **kw}),
+    "insert": Insert,
+}

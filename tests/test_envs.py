@@ -1,0 +1,185 @@
+"""Environments: sizes, rewards, episode logic, walls, success tests, vmap."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import hdt.envs as E
+from hdt.envs.tasks import Insert, Maze, Push, Reach, Waypoint
+
+# obs_lo sizes by SPEC 2: PM vel(2); ants qpos[2:] + qvel + 4 foot contacts; arms cos, sin, vel.
+OBS_LO = {"point": 2, "ant": 13 + 14 + 4, "ant3": 11 + 12 + 4, "ant2": 9 + 10 + 4,
+          "quadruped": 17 + 18 + 4, "arm_point": 2, "arm2": 6, "arm3": 9, "arm4": 12}
+ACTIONS = {"point": 2, "ant": 8, "ant3": 6, "ant2": 4, "quadruped": 12, "arm_point": 2, "arm2": 2,
+           "arm3": 3, "arm4": 4}
+
+
+@pytest.mark.parametrize("agent", list(E.AGENTS))
+def test_observation_sizes(agent):
+  env = E.make(agent, "reach")
+  assert env.obs_lo_size == OBS_LO[agent]
+  assert env.action_size == ACTIONS[agent]
+  assert env.obs_hi_size == 2 and env.observation_size == OBS_LO[agent] + 2
+  s = jax.jit(env.reset)(jax.random.PRNGKey(0))
+  s = jax.jit(env.step)(s, jnp.zeros(env.action_size))
+  assert s.obs.shape == (env.observation_size,) and bool(jnp.all(jnp.isfinite(s.obs)))
+
+
+def test_hl_observation_sizes():
+  assert E.make("ant", "steps").obs_lo_size == OBS_LO["ant"] + 16  # 16 rangefinders
+  assert E.make("arm3", "push1").obs_hi_size == 6  # tip, block, block velocity
+  assert E.make("arm3", "insert").obs_hi_size == 4  # peg tip, end effector
+
+
+def test_registry_errors_list_valid_names():
+  with pytest.raises(ValueError, match="valid agents: point, ant"):
+    E.make("spider", "reach")
+  with pytest.raises(ValueError, match="valid tasks"):
+    E.make("ant", "fly")
+  with pytest.raises(ValueError, match="cannot reach the PegInsert"):
+    E.make("arm2", "insert")
+  with pytest.raises(ValueError, match="push1 is a manip task, point a nav agent"):
+    E.make("point", "push1")
+  with pytest.raises(ValueError, match="unknown override"):
+    E.make("point", "reach", gear=3)
+
+
+def q(point, **kw):
+  return {"point": jnp.asarray(point, jnp.float32), **{k: jnp.asarray(v, jnp.float32) for k, v in kw.items()}}
+
+
+def test_reach_rewards_by_hand():
+  key = jax.random.PRNGKey(0)
+  ant = E.AGENTS["ant"]
+  t = {"goal": jnp.array([3.0, 4.0])}
+  # Moving 0.1 m straight toward the goal in dt = 0.05 s is 2 m/s of progress.
+  step = 0.1 * np.array([3.0, 4.0]) / 5.0
+  a = jnp.full(8, 0.5)
+  r, solved, _, m = Reach().reward(key, ant, q([0, 0]), q(step), a, t, 0.05)
+  assert np.isclose(r, 0.1 / 0.05 - 0.5 * 8 * 0.25 + 0.7, atol=1e-5)
+  assert not solved
+  # Sideways motion makes no progress.
+  r, *_ = Reach().reward(key, ant, q([0, 0]), q([0.4, -0.3]), jnp.zeros(8), t, 0.05)
+  assert np.isclose(r, 0.7, atol=1e-5)
+  arm = E.AGENTS["arm3"]
+  t = {"goal": jnp.array([0.1, 0.0])}
+  r, _, _, m = Reach().reward(key, arm, q([0, 0]), q([0.1, 0.005]), jnp.array([0.2, 0, 0]), t, 0.03)
+  assert np.isclose(r, -0.005 - 0.05 * 0.04 + 4.0, atol=1e-5) and m["success"] == 1.0
+  r, _, _, m = Reach().reward(key, arm, q([0, 0]), q([0.0, 0.0]), jnp.zeros(3), t, 0.03)
+  assert np.isclose(r, -0.1, atol=1e-6) and m["success"] == 0.0
+
+
+def test_hl_rewards_by_hand():
+  key = jax.random.PRNGKey(0)
+  pm = E.AGENTS["point"]
+  t = {"waypoint": jnp.array([3.0, 4.0])}
+  r, _, t2, _ = Waypoint().reward(key, pm, q([0, 0]), q([0, 0]), jnp.zeros(2), t, 0.06)
+  assert np.isclose(r, -0.5) and np.allclose(t2["waypoint"], [3, 4])
+  r, _, t2, m = Waypoint().reward(key, pm, q([0, 0]), q([3.0, 3.7]), jnp.zeros(2), t, 0.06)
+  assert np.isclose(r, 100 - 0.03, atol=1e-4) and m["waypoints"] == 1.0
+  assert not np.allclose(t2["waypoint"], [3, 4])  # a new waypoint appeared
+  maze = Maze(goal="end")
+  t = maze.sample(key, pm, q([0, 0]))
+  assert np.allclose(t["goal"], [0, 16])
+  r, solved, *_ = maze.reward(key, pm, q([0, 0]), q([1.0, 13.0]), jnp.zeros(2), t, 0.06)
+  assert r == 1000 and solved
+  r, solved, *_ = maze.reward(key, pm, q([0, 0]), q([1.0, 11.0]), jnp.zeros(2), t, 0.06)
+  assert r == 0 and not solved
+  arm = E.AGENTS["arm3"]
+  push = Push()
+  r, solved, *_ = push.reward(key, arm, q([0, 0]), q([0, 0], block=[0.0, -0.08], block_vel=[0, 0]),
+                              jnp.zeros(3), {}, 0.03)
+  assert np.isclose(r, -0.1) and not solved
+  r, solved, *_ = push.reward(key, arm, q([0, 0]), q([0, 0], block=[-0.11, -0.08], block_vel=[0, 0]),
+                              jnp.zeros(3), {}, 0.03)
+  assert np.isclose(r, 200 - 0.01, atol=1e-5) and solved
+  r, solved, *_ = Insert().reward(key, arm, q([0, 0]), q([0.01, -0.2], tip=[0, 0]), jnp.zeros(3), {}, 0.03)
+  assert solved and np.isclose(r, 50 - 20 * (0.01 ** 2 + 0.01 ** 2), atol=1e-5)
+
+
+def _with_qpos(env, state, qpos):
+  ps = env.physics.forward(state.physics.time, jnp.asarray(qpos, jnp.float32), state.physics.qvel * 0)
+  return state.replace(physics=ps)
+
+
+def test_fall_ends_episode():
+  env = E.make("ant", "reach")
+  s = env.reset(jax.random.PRNGKey(0))
+  qpos = np.array(s.physics.qpos)
+  qpos[2] = 1.2  # torso above the 1.0 m bound (thrown up: Gym ant's unhealthy case)
+  s = jax.jit(env.step)(_with_qpos(env, s, qpos), jnp.zeros(8))
+  assert s.metrics["fall"] == 1.0 and s.done == 1.0 and s.discount == 0.0
+  assert s.task["steps"] == 0 and s.physics.qpos[2] > 0.5  # back at the initial state
+
+
+def test_reach_keeps_robot_between_episodes():
+  env = E.make("point", "reach", reset_prob=0.0, ll_horizon=5)
+  s = env.reset(jax.random.PRNGKey(0))
+  step = jax.jit(env.step)
+  goal0 = s.task["t"]["goal"]
+  for _ in range(5):
+    s = step(s, jnp.array([1.0, 0.0]))
+  assert s.done == 1.0 and s.discount == 1.0  # time limit: bootstrap
+  assert s.physics.qpos[0] > 0.3  # robot kept where it was ...
+  assert not np.allclose(s.task["t"]["goal"], goal0)  # ... with a new goal
+  np.testing.assert_allclose(s.obs[-2:], s.task["t"]["goal"] - s.obs_hi[:2], atol=1e-6)
+
+
+def test_walls_stop_point_in_maze():
+  env = E.make("point", "maze", goal="end")
+  s = env.reset(jax.random.PRNGKey(0))
+  step = jax.jit(env.step)
+  ys = []
+  for _ in range(150):  # full force toward the middle wall (its face is at y = 4)
+    s = step(s, jnp.array([0.0, 1.0]))
+    ys.append(float(s.obs_hi[1]))
+  assert max(ys) < 4.0 - 0.4 and max(ys) > 3.0  # pressed against the wall, not through it
+
+
+def test_success_in_goal_cell():
+  env = E.make("point", "maze", goal="end")
+  s = env.reset(jax.random.PRNGKey(0))
+  s = jax.jit(env.step)(_with_qpos(env, s, [0.0, 15.0]), jnp.zeros(2))
+  assert s.metrics["success"] == 1.0 and s.reward == 1000.0 and s.done == 1.0 and s.discount == 0.0
+
+
+def test_block_reaches_destination():
+  env = E.make("arm3", "push1")
+  s = env.reset(jax.random.PRNGKey(0))
+  qpos = np.array(s.physics.qpos)
+  names = [env.mj_model.joint(j).name for j in range(env.mj_model.njnt)]
+  qpos[env.mj_model.jnt_qposadr[names.index("block/block_x")]] = -0.21  # block x: 0.12 -> -0.09
+  s = jax.jit(env.step)(_with_qpos(env, s, qpos), jnp.zeros(3))
+  assert s.metrics["success"] == 1.0 and s.done == 1.0 and s.reward > 199
+
+
+def test_peg_inserted():
+  env = E.make("arm_point", "insert")
+  s = env.reset(jax.random.PRNGKey(0))
+  # arm_point's body sits at (0.1, 0): slide to (-0.05, -0.205) puts the peg tip at (0, -0.205).
+  s = jax.jit(env.step)(_with_qpos(env, s, [-0.15, -0.205]), jnp.zeros(2))
+  assert s.metrics["success"] == 1.0 and s.done == 1.0
+  s2 = env.reset(jax.random.PRNGKey(0))
+  assert jax.jit(env.step)(s2, jnp.zeros(2)).metrics["success"] == 0.0
+
+
+@pytest.mark.parametrize("agent,task", [("ant", "reach"), ("arm3", "push1")])
+def test_vmap_equals_single_runs(agent, task):
+  env = E.make(agent, task)
+  keys = jax.random.split(jax.random.PRNGKey(3), 64)
+  actions = jax.random.uniform(jax.random.PRNGKey(4), (10, 64, env.action_size), minval=-1, maxval=1)
+
+  def run(key, acts):
+    s = env.reset(key)
+    def f(s, a):
+      s = env.step(s, a)
+      return s, s.obs
+    return jax.lax.scan(f, s, acts)[1]
+
+  batched = jax.jit(jax.vmap(run, in_axes=(0, 1)))(keys, actions)
+  single = jax.jit(run)
+  for i in range(0, 64, 9):
+    np.testing.assert_allclose(batched[i], single(keys[i], actions[:, i]), rtol=1e-5, atol=1e-5)
