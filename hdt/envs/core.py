@@ -21,6 +21,7 @@ class State:
   obs_hi: jax.Array  # global, morphology-independent observation; obs_hi[:2] is the goal-space point
   obs_lo: jax.Array  # proprioceptive observation of the agent
   next_obs: jax.Array  # obs at the end of this step, before any auto-reset (for replay)
+  next_obs_hi: jax.Array  # obs_hi at the end of this step, before any auto-reset
   reward: jax.Array
   done: jax.Array  # 1.0 when this step ended an episode (terminal or time limit)
   discount: jax.Array  # 0.0 on a true terminal (fall, task solved), else 1.0 (time limits bootstrap)

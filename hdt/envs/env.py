@@ -113,9 +113,20 @@ class AgentTaskEnv:
     zero = jnp.float32(0.0)
     _, _, _, metrics = self.task.reward(k_task, self.agent, q, q, jnp.zeros(self.action_size), t, self.dt)
     metrics = {k: jnp.zeros_like(v, jnp.float32) for k, v in metrics.items()} | {"fall": zero}
-    return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=obs, reward=zero, done=zero,
+    return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=obs, next_obs_hi=hi,
+                 reward=zero, done=zero,
                  discount=jnp.float32(1.0), task={"t": t, "steps": jnp.int32(0), "init": ps},
                  metrics=metrics, key=key)
+
+  def restart(self, state: State, key: jax.Array, where=True) -> State:
+    """Start a new episode from the cached initial physics with fresh task randomness, where
+    ``where`` holds (wrappers that own the time limit use this instead of a full reset)."""
+    ps = _where(where, state.task["init"], state.physics)
+    q = self.quantities(ps)
+    t = _where(where, self.task.sample(key, self.agent, q), state.task["t"])
+    lo, hi, obs = self._observe(ps, q, t)
+    return state.replace(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo,
+                         task=dict(state.task, t=t, steps=jnp.where(where, 0, state.task["steps"])))
 
   def step(self, state: State, action: jax.Array) -> State:
     key, k_task, k_reset, k_new = jax.random.split(state.key, 4)
@@ -130,7 +141,7 @@ class AgentTaskEnv:
     terminal = fell | solved
     timeout = steps >= self.horizon
     done = terminal | timeout
-    _, _, next_obs = self._observe(ps, q, t)
+    _, next_hi, next_obs = self._observe(ps, q, t)
 
     # Auto-reset: a new episode starts from the cached initial physics or from where the robot is.
     reset_physics = done & self.task.physics_reset(k_reset, self.agent, fell, timeout)
@@ -139,7 +150,7 @@ class AgentTaskEnv:
     t = _where(done, self.task.sample(k_new, self.agent, q), t)
     lo, hi, obs = self._observe(ps, q, t)
     metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()} | {"fall": fell.astype(jnp.float32)}
-    return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=next_obs,
+    return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=next_obs, next_obs_hi=next_hi,
                  reward=jnp.asarray(reward, jnp.float32), done=done.astype(jnp.float32),
                  discount=1.0 - terminal.astype(jnp.float32),
                  task={"t": t, "steps": jnp.where(done, 0, steps), "init": state.task["init"]},

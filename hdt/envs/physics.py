@@ -105,9 +105,11 @@ class NativePhysics:
                             np.reshape(qvel, (-1, self.mj_model.nv))], axis=1).astype(np.float64)
     ctrl = np.reshape(ctrl, (-1, 1, self.mj_model.nu)).astype(np.float64)
     ctrl = np.repeat(ctrl, self.frame_skip, axis=1)
-    with self._lock:
-      out_state, out_sens = rollout.rollout(self.mj_model, self._datas, state, ctrl,
-                                            nstep=self.frame_skip, persistent_pool=True)
+    n = state.shape[0]
+    with self._lock:  # one chunk per thread: per-call dispatch dominates at a few substeps per call
+      out_state, out_sens = rollout.rollout(
+          self.mj_model, self._datas[:n], state, ctrl, nstep=self.frame_skip,
+          chunk_size=-(-n // min(n, self._nthread)), persistent_pool=True)
     return self._unpack(out_state[:, -1], out_sens[:, -1], batch)
 
   def _forward_host(self, time, qpos, qvel):

@@ -1,0 +1,346 @@
+"""Soft actor-critic: configuration, losses (pure closures) and one gradient update.
+
+SAC as in Haarnoja et al. 2018 ("SAC and applications"): twin Q functions with target networks and
+a clipped double-Q (twin-min) target, a tanh-squashed Gaussian policy, and a learned temperature
+``alpha = exp(log_alpha)`` driven towards a target entropy (default ``-action_size``).
+
+Two optional plug-ins, both no-ops by default:
+
+* ``actor_regularizer(policy_params, obs) -> scalar`` is added to the actor loss (times a scale the
+  training loop may anneal), e.g. ``beta * KL(pi || pi_ref)`` to a frozen reference policy.
+* ``reward_fn(aux_state, batch) -> rewards`` recomputes the rewards of a sampled batch before the
+  critic target is formed, e.g. a discriminator bonus whose state lives in ``aux_state``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from hdt.agents import networks as nets
+from hdt.agents.replay import Transition
+
+Params = Any
+ActorRegularizer = Callable[[Params, jax.Array], jax.Array]
+RewardFn = Callable[[Any, Transition], jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig:
+  """Hyper-parameters. Defaults are the paper's point-mass low-level values (SPEC section 4).
+
+  A *training step* is ``num_envs`` parallel environment steps followed by ``updates_per_step``
+  gradient updates, so the update-to-data ratio is ``updates_per_step / num_envs`` (1 with the
+  defaults, as in stable-baselines' ``train_freq=1, gradient_steps=1``). A *chunk* is
+  ``steps_per_chunk`` training steps compiled into one ``lax.scan``; the host sees the state only
+  between chunks. Counts called ``*_env_steps`` / ``learning_starts`` are in environment steps
+  summed over the parallel environments.
+  """
+
+  hidden_sizes: tuple[int, ...] = (64, 64)  # actor MLP
+  critic_hidden_sizes: tuple[int, ...] | None = None  # None: same as hidden_sizes
+  actor_lr: float = 3e-4
+  critic_lr: float = 3e-4
+  alpha_lr: float = 3e-4
+  batch_size: int = 64
+  buffer_size: int = 200_000
+  tau: float = 0.005  # soft target update rate
+  gamma: float = 0.99
+  updates_per_step: int = 1  # gradient updates per training step (= per num_envs env steps)
+  num_envs: int = 1
+  total_env_steps: int = 200_000
+  learning_starts: int = 100  # env steps of uniform-random actions before learning (SB2 default)
+  reward_scale: float = 1.0
+  target_entropy: float | None = None  # None: -action_size
+  init_alpha: float = 1.0
+  steps_per_chunk: int = 1000  # training steps per compiled chunk
+  num_eval_episodes: int = 10
+
+  def __post_init__(self):
+    # Normalise sequences to tuples so the config stays hashable (it is a static jit argument).
+    object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+    if self.critic_hidden_sizes is not None:
+      object.__setattr__(
+          self, "critic_hidden_sizes", tuple(int(h) for h in self.critic_hidden_sizes)
+      )
+    self.validate()
+
+  # -- derived quantities ------------------------------------------------------------------------
+  @property
+  def critic_sizes(self) -> tuple[int, ...]:
+    return self.hidden_sizes if self.critic_hidden_sizes is None else self.critic_hidden_sizes
+
+  @property
+  def env_steps_per_chunk(self) -> int:
+    return self.num_envs * self.steps_per_chunk
+
+  @property
+  def num_chunks(self) -> int:
+    return self.total_env_steps // self.env_steps_per_chunk
+
+  def target_entropy_for(self, action_size: int) -> float:
+    return float(-action_size if self.target_entropy is None else self.target_entropy)
+
+  def to_dict(self) -> dict:
+    return dataclasses.asdict(self)
+
+  @classmethod
+  def from_dict(cls, d: dict) -> "SACConfig":
+    return cls(**d)
+
+  # -- validation --------------------------------------------------------------------------------
+  def validate(self) -> None:
+    errors = []
+
+    def need(cond, msg):
+      if not cond:
+        errors.append(msg)
+
+    for name in ("hidden_sizes", "critic_sizes"):
+      sizes = getattr(self, name)
+      need(
+          len(sizes) > 0 and all(h > 0 for h in sizes),
+          f"{name}={sizes}: give at least one hidden layer, all sizes positive, e.g. (64, 64)",
+      )
+    for name in ("actor_lr", "critic_lr", "alpha_lr"):
+      v = getattr(self, name)
+      need(math.isfinite(v) and v > 0, f"{name}={v}: learning rates must be positive, e.g. 3e-4")
+    for name in ("batch_size", "buffer_size", "updates_per_step", "num_envs", "steps_per_chunk",
+                 "num_eval_episodes", "total_env_steps"):
+      v = getattr(self, name)
+      need(isinstance(v, int) and v > 0, f"{name}={v!r}: must be a positive integer")
+    if errors:  # the checks below assume positive integers
+      raise ValueError("invalid SACConfig:\n  " + "\n  ".join(errors))
+    need(
+        self.batch_size <= self.buffer_size,
+        f"batch_size={self.batch_size} > buffer_size={self.buffer_size}: lower batch_size or "
+        "raise buffer_size",
+    )
+    need(
+        self.num_envs <= self.buffer_size,
+        f"num_envs={self.num_envs} > buffer_size={self.buffer_size}: one training step inserts "
+        "num_envs transitions, raise buffer_size",
+    )
+    need(0.0 < self.tau <= 1.0, f"tau={self.tau}: must be in (0, 1], e.g. 0.005")
+    need(0.0 <= self.gamma <= 1.0, f"gamma={self.gamma}: must be in [0, 1], e.g. 0.99")
+    need(
+        isinstance(self.learning_starts, int) and self.learning_starts >= 0,
+        f"learning_starts={self.learning_starts!r}: must be an integer >= 0",
+    )
+    need(
+        self.total_env_steps % self.env_steps_per_chunk == 0,
+        f"total_env_steps={self.total_env_steps} is not a multiple of num_envs*steps_per_chunk="
+        f"{self.env_steps_per_chunk}: set total_env_steps to "
+        f"{max(1, round(self.total_env_steps / self.env_steps_per_chunk)) * self.env_steps_per_chunk}"
+        " or change steps_per_chunk",
+    )
+    if isinstance(self.learning_starts, int):
+      need(
+          self.learning_starts < self.total_env_steps,
+          f"learning_starts={self.learning_starts} >= total_env_steps={self.total_env_steps}: the "
+          "agent would never learn; lower learning_starts",
+      )
+    need(math.isfinite(self.reward_scale), f"reward_scale={self.reward_scale}: must be finite")
+    need(
+        self.init_alpha > 0 and math.isfinite(self.init_alpha),
+        f"init_alpha={self.init_alpha}: must be positive, e.g. 1.0",
+    )
+    need(
+        self.target_entropy is None or math.isfinite(self.target_entropy),
+        f"target_entropy={self.target_entropy}: must be finite or None (-action_size)",
+    )
+    if errors:
+      raise ValueError("invalid SACConfig:\n  " + "\n  ".join(errors))
+
+
+# ----------------------------------------------------------------------------------------------
+# Losses.
+
+
+def make_losses(
+    networks: nets.SACNetworks,
+    *,
+    gamma: float,
+    reward_scale: float,
+    target_entropy: float,
+    actor_regularizer: ActorRegularizer | None = None,
+):
+  """Returns ``(critic_loss, actor_loss, alpha_loss)``, pure functions returning ``(loss, aux)``.
+
+  critic_loss(q_params, target_q_params, policy_params, log_alpha, batch, eps)
+      0.5 * sum_i mean_b (Q_i(s, a) - y)^2 with
+      y = reward_scale * r + discount * gamma * (min_i Q'_i(s', a') - alpha * log pi(a'|s')),
+      a' = tanh(loc(s') + scale(s') * eps), y under stop_gradient.
+  actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0)
+      mean_b (alpha * log pi(a|s) - min_i Q_i(s, a)) + reg_scale * actor_regularizer(params, obs),
+      a = tanh(loc(s) + scale(s) * eps). aux["log_prob"] is the per-sample log-prob (for alpha_loss).
+  alpha_loss(log_alpha, log_prob)
+      -mean_b log_alpha * stop_gradient(log_prob + target_entropy)   (as in SB2 / softlearning)
+
+  ``eps`` is standard-normal noise of shape ``(batch, action_size)``: the losses are deterministic
+  functions of their inputs, which keeps them testable and lets the training step draw all its
+  randomness at once.
+  """
+  policy_apply, q_apply = networks.policy_apply, networks.q_apply
+
+  def critic_loss(q_params, target_q_params, policy_params, log_alpha, batch: Transition, eps):
+    alpha = jnp.exp(log_alpha)
+    loc, scale = policy_apply(policy_params, batch.next_obs)
+    next_action, next_log_prob = nets.sample_from_noise(loc, scale, eps)
+    next_q = q_apply(target_q_params, batch.next_obs, next_action)
+    next_v = jnp.min(next_q, axis=-1) - alpha * next_log_prob
+    target = jax.lax.stop_gradient(
+        reward_scale * batch.reward + batch.discount * gamma * next_v
+    )
+    q = q_apply(q_params, batch.obs, batch.action)
+    loss = 0.5 * jnp.sum(jnp.mean(jnp.square(q - target[..., None]), axis=0))
+    return loss, {"q": jnp.mean(q), "target_q": jnp.mean(target)}
+
+  def actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0):
+    alpha = jnp.exp(log_alpha)
+    loc, scale = policy_apply(policy_params, obs)
+    action, log_prob = nets.sample_from_noise(loc, scale, eps)
+    min_q = jnp.min(q_apply(q_params, obs, action), axis=-1)
+    loss = jnp.mean(alpha * log_prob - min_q)
+    if actor_regularizer is not None:
+      reg = actor_regularizer(policy_params, obs)
+      loss = loss + reg_scale * reg
+    else:
+      reg = jnp.zeros((), loss.dtype)
+    return loss, {"log_prob": log_prob, "regularizer": reg}
+
+  def alpha_loss(log_alpha, log_prob):
+    return -jnp.mean(log_alpha * jax.lax.stop_gradient(log_prob + target_entropy))
+
+  return critic_loss, actor_loss, alpha_loss
+
+
+def soft_update(target_params: Params, online_params: Params, tau: float) -> Params:
+  """target <- tau * online + (1 - tau) * target, leaf by leaf."""
+  return jax.tree_util.tree_map(
+      lambda t, o: (1.0 - tau) * t + tau * o, target_params, online_params
+  )
+
+
+# ----------------------------------------------------------------------------------------------
+# Learner state and one gradient update.
+
+
+@struct.dataclass
+class SACState:
+  policy_params: Params
+  q_params: Params
+  target_q_params: Params
+  policy_opt_state: Any
+  q_opt_state: Any
+  log_alpha: jax.Array  # float32 scalar
+  alpha_opt_state: Any
+  update_steps: jax.Array  # int32, gradient updates done
+
+
+def make_optimizers(config: SACConfig):
+  """(policy, q, alpha) optax optimisers: plain Adam."""
+  return optax.adam(config.actor_lr), optax.adam(config.critic_lr), optax.adam(config.alpha_lr)
+
+
+def init_sac_state(networks: nets.SACNetworks, config: SACConfig, key: jax.Array) -> SACState:
+  k_pi, k_q = jax.random.split(key)
+  policy_params = networks.policy_init(k_pi)
+  q_params = networks.q_init(k_q)
+  pi_opt, q_opt, a_opt = make_optimizers(config)
+  log_alpha = jnp.asarray(math.log(config.init_alpha), jnp.float32)
+  return SACState(
+      policy_params=policy_params,
+      q_params=q_params,
+      target_q_params=jax.tree_util.tree_map(jnp.copy, q_params),
+      policy_opt_state=pi_opt.init(policy_params),
+      q_opt_state=q_opt.init(q_params),
+      log_alpha=log_alpha,
+      alpha_opt_state=a_opt.init(log_alpha),
+      update_steps=jnp.zeros((), jnp.int32),
+  )
+
+
+def make_update(
+    networks: nets.SACNetworks,
+    config: SACConfig,
+    action_size: int,
+    *,
+    actor_regularizer: ActorRegularizer | None = None,
+    reward_fn: RewardFn | None = None,
+):
+  """Returns ``update(state, batch, noise, aux_state=None, reg_scale=1.0) -> (state, metrics)``.
+
+  ``noise``: standard-normal array of shape ``(2, batch, action_size)``, the reparameterisation
+  noise of the critic target's next action (``noise[0]``) and of the actor loss (``noise[1]``),
+  e.g. ``jax.random.normal(key, (2, batch_size, action_size))``.
+
+  Order within one update: critic step (current alpha), actor step (new critic), alpha step (the
+  actor's log-probs), then the soft target update.
+  """
+  critic_loss, actor_loss, alpha_loss = make_losses(
+      networks,
+      gamma=config.gamma,
+      reward_scale=config.reward_scale,
+      target_entropy=config.target_entropy_for(action_size),
+      actor_regularizer=actor_regularizer,
+  )
+  pi_opt, q_opt, a_opt = make_optimizers(config)
+  critic_grad = jax.value_and_grad(critic_loss, has_aux=True)
+  actor_grad = jax.value_and_grad(actor_loss, has_aux=True)
+  alpha_grad = jax.value_and_grad(alpha_loss)
+
+  def update(state: SACState, batch: Transition, noise, aux_state=None, reg_scale=1.0):
+    eps_critic, eps_actor = noise[0], noise[1]
+    if reward_fn is not None:
+      batch = batch.replace(reward=reward_fn(aux_state, batch).astype(batch.reward.dtype))
+
+    (c_loss, c_aux), g = critic_grad(
+        state.q_params, state.target_q_params, state.policy_params, state.log_alpha, batch,
+        eps_critic,
+    )
+    upd, q_opt_state = q_opt.update(g, state.q_opt_state, state.q_params)
+    q_params = optax.apply_updates(state.q_params, upd)
+
+    (a_loss, a_aux), g = actor_grad(
+        state.policy_params, q_params, state.log_alpha, batch.obs, eps_actor, reg_scale
+    )
+    upd, policy_opt_state = pi_opt.update(g, state.policy_opt_state, state.policy_params)
+    policy_params = optax.apply_updates(state.policy_params, upd)
+
+    al_loss, g = alpha_grad(state.log_alpha, a_aux["log_prob"])
+    upd, alpha_opt_state = a_opt.update(g, state.alpha_opt_state, state.log_alpha)
+    log_alpha = optax.apply_updates(state.log_alpha, upd)
+
+    target_q_params = soft_update(state.target_q_params, q_params, config.tau)
+    new_state = SACState(
+        policy_params=policy_params,
+        q_params=q_params,
+        target_q_params=target_q_params,
+        policy_opt_state=policy_opt_state,
+        q_opt_state=q_opt_state,
+        log_alpha=log_alpha,
+        alpha_opt_state=alpha_opt_state,
+        update_steps=state.update_steps + 1,
+    )
+    metrics = {
+        "critic_loss": c_loss,
+        "actor_loss": a_loss,
+        "alpha_loss": al_loss,
+        "alpha": jnp.exp(log_alpha),
+        "entropy": -jnp.mean(a_aux["log_prob"]),
+        "q": c_aux["q"],
+        "target_q": c_aux["target_q"],
+        "regularizer": a_aux["regularizer"],
+        "regularizer_weight": jnp.asarray(reg_scale, jnp.float32),
+        "batch_reward": jnp.mean(batch.reward),
+    }
+    return new_state, metrics
+
+  return update

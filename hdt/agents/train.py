@@ -1,0 +1,438 @@
+"""SAC training as pure, vmappable functions, plus a host-side driver.
+
+``make_train(env, config)`` returns a :class:`Trainer` whose functions are pure and work under
+``jax.jit(jax.vmap(...))`` over a leading seed axis (that is how seed sweeps run)::
+
+    trainer = make_train(env, SACConfig(total_env_steps=20_000))
+    keys = seed_keys(range(4))
+    ts = jax.jit(jax.vmap(trainer.init))(keys)
+    ts, metrics = jax.jit(jax.vmap(trainer.run_chunk), donate_argnums=0)(ts)
+    ev = jax.jit(jax.vmap(trainer.evaluate))(ts.agent.policy_params, eval_keys)
+    ts, out = jax.jit(jax.vmap(trainer.train))(keys)           # everything in one call
+
+(:func:`vmapped` builds and caches exactly these jitted functions), or use :func:`run`, which
+loops chunks on the host, evaluates and reports progress.
+
+One *training step* = policy actions for the ``num_envs`` parallel envs (uniform-random while
+fewer than ``learning_starts`` env steps have been taken) -> vmapped ``env.step`` -> insert the
+transitions ``(obs, action, next.reward, next.next_obs, next.discount)`` into the replay ->
+optional ``aux_update`` plug-in -> ``updates_per_step`` gradient updates in a ``lax.scan`` (skipped
+while fewer than ``learning_starts`` env steps have been taken). A *chunk* is ``steps_per_chunk``
+training steps in one ``lax.scan``; the host sees the state only between chunks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from typing import Any, Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from hdt.agents import networks as nets
+from hdt.agents import replay as replay_lib
+from hdt.agents.replay import Transition
+from hdt.agents.sac import (
+    ActorRegularizer,
+    RewardFn,
+    SACConfig,
+    SACState,
+    init_sac_state,
+    make_update,
+)
+
+# aux_init(key) -> aux_state ; aux_update(aux_state, transitions, env_steps, key) -> (aux_state, metrics)
+AuxInit = Callable[[jax.Array], Any]
+AuxUpdate = Callable[[Any, Transition, jax.Array, jax.Array], tuple[Any, dict]]
+# actor_regularizer_schedule(env_steps) -> multiplier of the actor regulariser (e.g. annealed beta)
+Schedule = Callable[[jax.Array], jax.Array]
+
+
+@struct.dataclass
+class TrainState:
+  """Everything needed to resume training (all arrays; a leading seed axis under vmap)."""
+
+  agent: SACState  # policy/q params, target q params, optimiser states, log_alpha (+opt), update count
+  replay: replay_lib.ReplayState
+  env_state: Any  # hdt.envs.core.State batched over num_envs
+  key: jax.Array
+  env_steps: jax.Array  # int32, env steps taken (summed over parallel envs)
+  episode_return: jax.Array  # (num_envs,) float32, running return of the current training episodes
+  aux: Any  # plug-in state (e.g. a discriminator and its buffer); {} when unused
+
+
+class Trainer(NamedTuple):
+  init: Callable[[jax.Array], TrainState]
+  run_chunk: Callable[[TrainState], tuple[TrainState, dict]]
+  evaluate: Callable[[Any, jax.Array], dict]
+  train: Callable[[jax.Array], tuple[TrainState, dict]]
+  networks: nets.SACNetworks
+  config: SACConfig
+
+
+def _no_aux_update(aux, transitions, env_steps, key):
+  return aux, {}
+
+
+def _uniform01_from_bits(bits: jax.Array) -> jax.Array:
+  """float32 in [0, 1) from uint32 bits (23 random mantissa bits, as jax.random.uniform)."""
+  mantissa = jnp.right_shift(bits, jnp.uint32(9)) | jnp.uint32(0x3F800000)
+  return jax.lax.bitcast_convert_type(mantissa, jnp.float32) - 1.0
+
+
+def _normal_from_bits(bits: jax.Array) -> jax.Array:
+  """Standard normal float32 from uint32 bits via sqrt(2) erfinv(u), u in (-1, 1) (as jax.random.normal)."""
+  u = 2.0 * _uniform01_from_bits(bits) - 1.0
+  u = jnp.maximum(u, jnp.nextafter(jnp.float32(-1.0), jnp.float32(0.0)))
+  return jnp.float32(np.sqrt(2.0)) * jax.lax.erf_inv(u)
+
+
+def make_train(
+    env,
+    config: SACConfig,
+    *,
+    networks: nets.SACNetworks | None = None,
+    actor_regularizer: ActorRegularizer | None = None,
+    actor_regularizer_schedule: Schedule | None = None,
+    reward_fn: RewardFn | None = None,
+    aux_init: AuxInit | None = None,
+    aux_update: AuxUpdate | None = None,
+) -> Trainer:
+  """Builds the pure functions ``init``, ``run_chunk``, ``evaluate`` and ``train``.
+
+  Plug-ins (all optional, no-ops by default):
+    actor_regularizer(policy_params, obs) -> scalar, added to the actor loss, multiplied by
+      actor_regularizer_schedule(env_steps) (default 1).
+    reward_fn(aux_state, batch) -> rewards, recomputes sampled rewards before the critic target.
+    aux_init(key) -> aux_state, aux_update(aux_state, transitions, env_steps, key) -> (aux_state,
+      metrics): plug-in state carried in TrainState.aux, updated once per training step after the
+      new transitions were inserted (metrics are averaged over the chunk).
+  """
+  obs_size, act_size = int(env.observation_size), int(env.action_size)
+  if networks is None:
+    networks = nets.make_sac_networks(
+        obs_size, act_size, config.hidden_sizes, config.critic_sizes
+    )
+  update = make_update(
+      networks, config, act_size, actor_regularizer=actor_regularizer, reward_fn=reward_fn
+  )
+  aux_init = aux_init or (lambda key: {})
+  aux_update = aux_update or _no_aux_update
+  schedule = actor_regularizer_schedule or (lambda env_steps: jnp.ones((), jnp.float32))
+  n_envs, batch_size = config.num_envs, config.batch_size
+  v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+
+  # ---------------------------------------------------------------------------------------------
+  def init(key: jax.Array) -> TrainState:
+    k_agent, k_env, k_aux, k_next = jax.random.split(key, 4)
+    return TrainState(
+        agent=init_sac_state(networks, config, k_agent),
+        replay=replay_lib.init(
+            config.buffer_size, replay_lib.make_transition_spec(obs_size, act_size)
+        ),
+        env_state=v_reset(jax.random.split(k_env, n_envs)),
+        key=k_next,
+        env_steps=jnp.zeros((), jnp.int32),
+        episode_return=jnp.zeros((n_envs,), jnp.float32),
+        aux=aux_init(k_aux),
+    )
+
+  # ---------------------------------------------------------------------------------------------
+  # All the randomness of one training step comes from ONE jax.random.bits call (threefry is
+  # slow to compile on CPU, about 0.3 s per call site under vmap): per env, 2*A words (policy noise,
+  # random action); per gradient update, B words (replay indices) + 2*B*A words (critic and actor
+  # noise).
+  G, A = config.updates_per_step, act_size
+  n_act_bits = n_envs * 2 * A
+  n_upd_bits = batch_size * (1 + 2 * A)
+
+  def sample_batches(replay, bits):
+    """G batches (leading axes (G, B)) and their reparameterisation noise (G, 2, B, A)."""
+    bits = bits.reshape(G, n_upd_bits)
+    batches = replay_lib.sample_from_bits(replay, bits[:, :batch_size])
+    noise = _normal_from_bits(bits[:, batch_size:]).reshape(G, 2, batch_size, A)
+    return batches, noise
+
+  def gradient_updates(agent: SACState, batches, noise, aux, reg_scale):
+    def one(agent, xs):
+      batch, eps = xs
+      return update(agent, batch, eps, aux, reg_scale)
+
+    agent, m = jax.lax.scan(one, agent, (batches, noise))
+    return agent, jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), m)
+
+  def train_step(ts: TrainState, _):
+    key, k_aux, k_bits = jax.random.split(ts.key, 3)
+    bits = jax.random.bits(k_bits, (n_act_bits + G * n_upd_bits,), jnp.uint32)
+    act_bits, upd_bits = bits[:n_act_bits].reshape(2, n_envs, A), bits[n_act_bits:]
+    obs = ts.env_state.obs
+    loc, scale = networks.policy_apply(ts.agent.policy_params, obs)
+    policy_action, _ = nets.sample_from_noise(loc, scale, _normal_from_bits(act_bits[0]))
+    random_action = 2.0 * _uniform01_from_bits(act_bits[1]) - 1.0
+    warmup = ts.env_steps < config.learning_starts
+    action = jnp.where(warmup, random_action, policy_action)
+
+    nxt = v_step(ts.env_state, action)
+    f32 = lambda x: jnp.asarray(x, jnp.float32)
+    transitions = Transition(
+        obs=f32(obs), action=f32(action), reward=f32(nxt.reward), next_obs=f32(nxt.next_obs),
+        discount=f32(nxt.discount),
+    )
+    env_steps = ts.env_steps + n_envs
+    aux, aux_metrics = aux_update(ts.aux, transitions, env_steps, k_aux)
+
+    # Insert, then gather all G batches, outside the lax.cond. Measured on CPU: gathering from
+    # the pre-insert buffer, or passing the buffer into the cond, made XLA copy the whole buffer
+    # every step (O(capacity) per step instead of O(num_envs)); see also replay._take_rows.
+    replay = replay_lib.insert(ts.replay, transitions)
+    batches, noise = sample_batches(replay, upd_bits)
+    reg_scale = schedule(env_steps)
+    learn = env_steps >= config.learning_starts
+    upd = lambda agent: gradient_updates(agent, batches, noise, aux, reg_scale)
+    _, metrics_shape = jax.eval_shape(upd, ts.agent)
+    skip = lambda agent: (
+        agent, jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), metrics_shape)
+    )
+    agent, upd_metrics = jax.lax.cond(learn, upd, skip, ts.agent)
+
+    done = f32(nxt.done)
+    ep_ret = ts.episode_return + f32(nxt.reward)
+    new_ts = TrainState(
+        agent=agent,
+        replay=replay,
+        env_state=nxt,
+        key=key,
+        env_steps=env_steps,
+        episode_return=ep_ret * (1.0 - done),
+        aux=aux,
+    )
+    step_metrics = {
+        "update": upd_metrics,
+        "aux": aux_metrics,
+        "learn": f32(learn),
+        "episode_return_sum": jnp.sum(ep_ret * done),
+        "episodes": jnp.sum(done),
+    }
+    return new_ts, step_metrics
+
+  def run_chunk(ts: TrainState) -> tuple[TrainState, dict]:
+    """``steps_per_chunk`` training steps; returns chunk-averaged scalar metrics."""
+    ts, m = jax.lax.scan(train_step, ts, None, length=config.steps_per_chunk)
+    n_learn = jnp.sum(m["learn"])
+    learn_mean = lambda x: jnp.sum(x * m["learn"]) / jnp.maximum(n_learn, 1.0)
+    metrics = {k: learn_mean(v) for k, v in m["update"].items()}
+    metrics.update({k: jnp.mean(v, axis=0) for k, v in m["aux"].items()})
+    episodes = jnp.sum(m["episodes"])
+    metrics["train_episode_return"] = jnp.where(
+        episodes > 0, jnp.sum(m["episode_return_sum"]) / jnp.maximum(episodes, 1.0), jnp.nan
+    )
+    metrics["train_episodes"] = episodes
+    metrics["env_steps"] = ts.env_steps
+    metrics["update_steps"] = ts.agent.update_steps
+    return ts, metrics
+
+  # ---------------------------------------------------------------------------------------------
+  def evaluate(policy_params, key: jax.Array) -> dict:
+    """Deterministic (tanh(mean)) rollouts of ``num_eval_episodes`` parallel episodes.
+
+    Each episode is counted up to and including its first ``done`` (within ``env.horizon`` steps).
+    Returns ``return`` (mean over episodes), ``return_std``, ``length``, and for each entry ``k``
+    of ``state.metrics``: ``k`` (mean over the episode's steps), ``k_max`` and ``k_final`` (value
+    at the episode's last step), each averaged over episodes.
+    """
+    n = config.num_eval_episodes
+    s0 = v_reset(jax.random.split(key, n))
+    m0 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), s0.metrics)
+    zeros_like = lambda t: jax.tree_util.tree_map(jnp.zeros_like, t)
+    carry0 = dict(
+        state=s0,
+        alive=jnp.ones((n,), jnp.float32),
+        ret=jnp.zeros((n,), jnp.float32),
+        length=jnp.zeros((n,), jnp.float32),
+        msum=zeros_like(m0),
+        mmax=jax.tree_util.tree_map(lambda x: jnp.full_like(x, -jnp.inf), m0),
+        mlast=zeros_like(m0),
+    )
+
+    def bcast(alive, x):
+      return alive.reshape(alive.shape + (1,) * (x.ndim - 1))
+
+    def step(c, _):
+      loc, _ = networks.policy_apply(policy_params, c["state"].obs)
+      s = v_step(c["state"], nets.deterministic_action(loc))
+      alive = c["alive"]
+      m = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), s.metrics)
+      on = lambda x: bcast(alive, x) > 0
+      return dict(
+          state=s,
+          alive=alive * (1.0 - jnp.asarray(s.done, jnp.float32)),
+          ret=c["ret"] + alive * jnp.asarray(s.reward, jnp.float32),
+          length=c["length"] + alive,
+          msum=jax.tree_util.tree_map(lambda a, x: a + bcast(alive, x) * x, c["msum"], m),
+          mmax=jax.tree_util.tree_map(
+              lambda a, x: jnp.where(on(x), jnp.maximum(a, x), a), c["mmax"], m
+          ),
+          mlast=jax.tree_util.tree_map(lambda a, x: jnp.where(on(x), x, a), c["mlast"], m),
+      ), None
+
+    c, _ = jax.lax.scan(step, carry0, None, length=env.horizon)
+    length = jnp.maximum(c["length"], 1.0)
+    out = {
+        "return": jnp.mean(c["ret"]),
+        "return_std": jnp.std(c["ret"]),
+        "length": jnp.mean(c["length"]),
+    }
+    for k in c["msum"]:
+      x = c["msum"][k]
+      out[k] = jnp.mean(x / length.reshape(length.shape + (1,) * (x.ndim - 1)), axis=0)
+      out[k + "_max"] = jnp.mean(c["mmax"][k], axis=0)
+      out[k + "_final"] = jnp.mean(c["mlast"][k], axis=0)
+    return out
+
+  # ---------------------------------------------------------------------------------------------
+  def train(key: jax.Array) -> tuple[TrainState, dict]:
+    """init + all chunks + a final evaluation: ``(ts, {"train": per-chunk metrics, "eval": ...})``."""
+    k_init, k_eval = jax.random.split(key)
+    ts = init(k_init)
+    ts, chunk_metrics = jax.lax.scan(
+        lambda ts, _: run_chunk(ts), ts, None, length=config.num_chunks
+    )
+    return ts, {"train": chunk_metrics, "eval": evaluate(ts.agent.policy_params, k_eval)}
+
+  return Trainer(init, run_chunk, evaluate, train, networks, config)
+
+
+# ------------------------------------------------------------------------------------------------
+# Host-side driver.
+
+
+class RunResult(NamedTuple):
+  params: dict  # {"policy": ..., "q": ...}, leading axis = seeds
+  history: dict  # name -> np.ndarray, leading axis = seeds
+  state: TrainState  # final TrainState (leading axis = seeds), for checkpointing / resuming
+
+
+def seed_keys(seeds: Sequence[int]) -> jax.Array:
+  """The training keys :func:`run` uses: ``PRNGKey(seed)`` stacked over seeds."""
+  return jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
+
+
+def eval_key(seed_key: jax.Array, index: int) -> jax.Array:
+  """The key of :func:`run`'s ``index``-th evaluation (0 = before the first chunk, c = after chunk c)."""
+  return jax.random.fold_in(jax.random.fold_in(seed_key, 0x5EED), index)
+
+
+class VmappedFns(NamedTuple):
+  init: Callable  # (keys[S]) -> TrainState[S]
+  run_chunk: Callable  # TrainState[S] -> (TrainState[S], metrics[S]); donates its argument
+  evaluate: Callable  # (policy_params[S], keys[S]) -> metrics[S]
+
+
+@functools.lru_cache(maxsize=16)
+def vmapped(trainer: Trainer) -> VmappedFns:
+  """``jit(vmap(...))`` of the trainer's functions over a leading seed axis, cached per trainer.
+
+  ``run_chunk`` donates the TrainState (the replay is updated in place): do not reuse its input.
+  """
+  return VmappedFns(
+      init=jax.jit(jax.vmap(trainer.init)),
+      run_chunk=jax.jit(jax.vmap(trainer.run_chunk), donate_argnums=0),
+      evaluate=jax.jit(jax.vmap(trainer.evaluate)),
+  )
+
+
+def run(
+    env,
+    config: SACConfig,
+    seeds: int | Sequence[int] = 1,
+    progress_fn: Callable[[int, dict], None] | None = None,
+    eval_every: int | None = None,
+    *,
+    initial_state: TrainState | None = None,
+    eval_at_start: bool = True,
+    trainer: Trainer | None = None,
+    **plugins,
+) -> RunResult:
+  """Trains ``len(seeds)`` seeds in lock-step (vmapped) and returns params and history.
+
+  seeds: an int n means seeds ``0..n-1``; a list gives the seeds explicitly.
+  eval_every: env steps between deterministic evaluations; must be a multiple of
+    ``config.env_steps_per_chunk``. None evaluates after every chunk; the last chunk is always
+    evaluated.
+  progress_fn(env_steps, metrics): called after every chunk with a dict of per-seed numpy arrays
+    (training metrics, and ``eval/...`` entries when an evaluation ran).
+  initial_state: a TrainState (with seed axis) to resume from instead of initialising; training
+    continues from its ``env_steps`` up to ``config.total_env_steps``.
+  eval_at_start: also evaluate before the first chunk (the untrained / resumed policy).
+  trainer: a :class:`Trainer` from ``make_train(env, config, ...)`` to reuse (with its compiled
+    functions, see :func:`vmapped`); its config may differ from ``config`` only in
+    ``total_env_steps``. Without it, ``make_train(env, config, **plugins)`` is built.
+  plugins: forwarded to :func:`make_train` (actor_regularizer, reward_fn, aux_init, ...).
+
+  History: training metrics have shape (seeds, chunks) (``env_steps`` says where);
+  ``eval/...`` entries have shape (seeds, evaluations) (``eval/env_steps`` says where).
+  """
+  seeds = list(range(seeds)) if isinstance(seeds, int) else [int(s) for s in seeds]
+  if not seeds:
+    raise ValueError("seeds must be a positive int or a non-empty list of ints")
+  chunk_steps = config.env_steps_per_chunk
+  if eval_every is None:
+    eval_every = chunk_steps
+  if eval_every <= 0 or eval_every % chunk_steps:
+    raise ValueError(
+        f"eval_every={eval_every} must be a positive multiple of num_envs*steps_per_chunk="
+        f"{chunk_steps}"
+    )
+  if trainer is None:
+    trainer = make_train(env, config, **plugins)
+  else:
+    if plugins:
+      raise ValueError(f"pass plugins {sorted(plugins)} to make_train, not with trainer=")
+    if dataclasses.replace(trainer.config, total_env_steps=config.total_env_steps) != config:
+      raise ValueError("trainer.config differs from config in more than total_env_steps")
+  fns = vmapped(trainer)
+  keys = seed_keys(seeds)
+  if initial_state is None:
+    ts = fns.init(keys)
+  else:
+    ts = initial_state
+    if np.shape(ts.env_steps) != (len(seeds),):
+      raise ValueError(
+          f"initial_state has seed axis {np.shape(ts.env_steps)}, expected ({len(seeds)},)"
+      )
+  chunk_fn, eval_fn = fns.run_chunk, fns.evaluate
+  start_chunk = int(np.asarray(ts.env_steps).reshape(-1)[0]) // chunk_steps
+
+  hist: dict[str, list] = {}
+
+  def evaluate(index, step):
+    k = jax.vmap(eval_key, in_axes=(0, None))(keys, index)
+    ev = jax.device_get(eval_fn(ts.agent.policy_params, k))
+    ev = {f"eval/{name}": np.asarray(v) for name, v in ev.items()}
+    ev["eval/env_steps"] = np.full(len(seeds), step)
+    for name, v in ev.items():
+      hist.setdefault(name, []).append(v)
+    return ev
+
+  if eval_at_start:
+    evaluate(start_chunk, start_chunk * chunk_steps)
+  t0 = time.perf_counter()
+  for c in range(start_chunk, config.num_chunks):
+    ts, m = chunk_fn(ts)
+    m = {k: np.asarray(v) for k, v in jax.device_get(m).items()}
+    step = (c + 1) * chunk_steps
+    m["walltime"] = np.full(len(seeds), time.perf_counter() - t0)
+    for k, v in m.items():
+      hist.setdefault(k, []).append(v)
+    if step % eval_every == 0 or c == config.num_chunks - 1:
+      m.update(evaluate(c + 1, step))
+    if progress_fn is not None:
+      progress_fn(step, m)
+
+  history = {k: np.stack(v, axis=1) for k, v in hist.items()}  # (seeds, records, ...)
+  params = {"policy": ts.agent.policy_params, "q": ts.agent.q_params}
+  return RunResult(params=params, history=history, state=ts)

@@ -1,0 +1,57 @@
+"""The paper's SAC hyper-parameters per level and agent family (SPEC 4, paper Appendix D)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from hdt.agents.sac import SACConfig
+from hdt.envs.agents import AGENTS
+
+# Low level: PM nav 200k / lr 3e-4 / batch 64 / [64,64] / buffer 200k; legged 2.5M / 8e-4 / 100 /
+# [400,300] / 1M; manipulation 1.2M / 3e-4 / 100 / [128,96] / 250k.
+_LOW = {
+    "point": dict(total_env_steps=200_000, actor_lr=3e-4, batch_size=64, hidden_sizes=(64, 64),
+                  buffer_size=200_000),
+    "legged": dict(total_env_steps=2_500_000, actor_lr=8e-4, batch_size=100, hidden_sizes=(400, 300),
+                   buffer_size=1_000_000),
+    "manip": dict(total_env_steps=1_200_000, actor_lr=3e-4, batch_size=100, hidden_sizes=(128, 96),
+                  buffer_size=250_000),
+}
+# High level: [64,64], lr 3e-4, batch 64, buffer 50k; LL-equivalent steps per task.
+_HIGH = dict(actor_lr=3e-4, batch_size=64, hidden_sizes=(64, 64), buffer_size=50_000)
+HIGH_LL_STEPS = {"waypoint": 200_000, "maze": 400_000, "steps": 400_000, "push1": 500_000,
+                 "push2": 500_000, "insert": 500_000}
+
+
+def _lrs(d):
+  lr = d.get("actor_lr")
+  return dict(d, critic_lr=lr, alpha_lr=lr) if lr else d
+
+
+def _fit(cfg: dict) -> SACConfig:
+  """Round total steps to whole chunks so the config validates."""
+  cfg["steps_per_chunk"] = min(cfg.get("steps_per_chunk", 1000), max(1, cfg["total_env_steps"] // cfg.get("num_envs", 1)))
+  chunk = cfg.get("num_envs", 1) * cfg["steps_per_chunk"]
+  cfg["total_env_steps"] = max(1, round(cfg["total_env_steps"] / chunk)) * chunk
+  cfg["learning_starts"] = min(cfg.get("learning_starts", 100), cfg["total_env_steps"] // 2)
+  return SACConfig(**cfg)
+
+
+def low_config(agent: str, **overrides) -> SACConfig:
+  spec = AGENTS[agent]
+  base = _LOW["point"] if agent == "point" else _LOW["legged"] if spec.legged else _LOW["manip"]
+  return _fit(_lrs(dict(base)) | overrides)
+
+
+def high_config(task: str, k: int, **overrides) -> SACConfig:
+  base = dict(_HIGH, total_env_steps=max(1, HIGH_LL_STEPS.get(task, 200_000) // k))
+  return _fit(_lrs(base) | overrides)
+
+
+def full_config(agent: str, task: str, **overrides) -> SACConfig:
+  """Flat SAC on the task with the agent's torques: the agent's LL network, the task's budget."""
+  return low_config(agent, **(dict(total_env_steps=HIGH_LL_STEPS.get(task, 200_000)) | overrides))
+
+
+def replace(cfg: SACConfig, **kw) -> SACConfig:
+  return _fit(dataclasses.asdict(cfg) | kw)

@@ -1,0 +1,169 @@
+"""Composing an HL with an LL, evaluating policies over seeds, and zero-shot transfer matrices."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hdt.agents.sac import SACConfig
+from hdt.agents.train import make_train
+from hdt.envs import make
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer.hierarchy import HighLevelEnv
+from hdt.transfer.pipeline import configs_task_horizon, low_policy_fn
+
+_GOAL_SPACE = {"nav": "navigation (torso xy)", "manip": "manipulation (end-effector xy)"}
+
+
+@dataclasses.dataclass
+class Policy:
+  """A runnable policy: an HL over an LL (``low`` set) or a flat policy (LL on reach, or Full)."""
+
+  params: Any  # policy params, leading seed axis
+  meta: dict
+  low_params: Any = None  # LL policy params, leading seed axis (paired with the HL seeds)
+  low_meta: dict | None = None
+  delta_max: float | None = None
+
+  @property
+  def agent(self) -> str:
+    return (self.low_meta or self.meta)["agent"]
+
+  @property
+  def num_seeds(self) -> int:
+    return int(jax.tree.leaves(self.params)[0].shape[0])
+
+
+def load_policy(run: str | Path) -> Policy:
+  params, metas = ckpt.load_all(run)
+  return Policy(params["policy"], metas[0])
+
+
+def compose(high: str | Path, low: str | Path, box: str = "refuse") -> Policy:
+  """HL of ``high`` driving the LL of ``low``. Goal spaces must agree; goal boxes that differ are
+  refused unless ``box='scale'`` (the HL's [-1, 1] actions span the LL's box) or ``box='keep'``
+  (the HL's box in metres)."""
+  hp, hmetas = ckpt.load_all(high)
+  lp, lmetas = ckpt.load_all(low)
+  hm, lm = hmetas[0], lmetas[0]
+  if hm.get("level") != "high":
+    raise ckpt.CheckpointError(f"{high} holds a {hm.get('level')!r}-level policy; compose needs an HL "
+                               f"(from `hdt train high`) as high=")
+  if lm.get("level") != "low":
+    raise ckpt.CheckpointError(f"{low} holds a {lm.get('level')!r}-level policy; compose needs an LL "
+                               f"(from `hdt train low`) as low=")
+  if hm["family"] != lm["family"]:
+    raise ValueError(
+        f"goal spaces do not match: the HL in {high} emits {_GOAL_SPACE[hm['family']]} sub-goals, the "
+        f"LL in {low} ({lm['agent']}) reaches {_GOAL_SPACE[lm['family']]} goals; pair an HL and an LL "
+        f"of the same family")
+  dm = hm["delta_max"]
+  if not np.isclose(hm["delta_max"], lm["delta_max"]):
+    if box == "scale":
+      dm = lm["delta_max"]
+    elif box != "keep":
+      raise ValueError(f"goal boxes differ: HL sub-goals span +-{hm['delta_max']} but the LL was trained "
+                       f"on +-{lm['delta_max']}; pass box='scale' to map the HL's box onto the LL's, or "
+                       f"box='keep' to keep the HL's box in metres")
+  # Pair HL seed i with LL seed i (cycling when one run has fewer seeds).
+  n = max(len(hmetas), len(lmetas))
+  pick = lambda tree, m: jax.tree.map(lambda x: x[np.arange(n) % m], tree)
+  return Policy(pick(hp["policy"], len(hmetas)), hm, pick(lp["policy"], len(lmetas)), lm, dm)
+
+
+def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, record=False,
+             **task_overrides):
+  if policy.low_meta is None:  # flat policy: LL on reach, or a Full policy on its task
+    task = task or policy.meta["task"]
+    env = make(policy.meta["agent"], task, backend=backend,
+               **(policy.meta.get("env_overrides") or {}) | task_overrides)
+    if env.observation_size != policy.meta["obs_size"]:
+      raise ValueError(f"the policy observes {policy.meta['obs_size']} numbers, {policy.meta['agent']} "
+                       f"on {task} gives {env.observation_size}")
+    return env
+  task = task or policy.meta["task"]
+  lm = policy.low_meta
+  inner = make(lm["agent"], task, backend=backend, hl_horizon=10**6,
+               **(lm.get("env_overrides") or {}) | task_overrides)
+  if inner.obs_hi_size != policy.meta["obs_size"]:
+    raise ValueError(f"the HL observes {policy.meta['obs_size']} numbers but {task} gives "
+                     f"{inner.obs_hi_size} (was the HL trained on another task?)")
+  fn = low_policy_fn(lm["hidden_sizes"], lm["obs_size"], lm["action_size"])
+  horizon = configs_task_horizon(task, task_overrides)  # inner's own horizon is disabled above
+  return HighLevelEnv(inner, fn, low_params, k=lm["k"], hl_horizon=horizon, record=record,
+                      delta_max=policy.delta_max)
+
+
+def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds=None,
+             backend: str = "auto", key: int = 1234, **task_overrides) -> dict:
+  """Deterministic evaluation of every seed of ``policy`` (vmapped): per-seed mean return and
+  success, and their mean and std across seeds, as in the paper's tables."""
+  n = policy.num_seeds
+  idx = np.arange(n) if seeds is None else np.asarray(seeds)
+  hidden = tuple(policy.meta["hidden_sizes"])
+  cfg = SACConfig(hidden_sizes=hidden, num_eval_episodes=episodes, total_env_steps=1000,
+                  steps_per_chunk=1000, batch_size=1, buffer_size=1, learning_starts=0)
+
+  def one(params, low_params, k):
+    env = _env_for(policy, task, backend, low_params, **task_overrides)
+    return make_train(env, cfg).evaluate(params, k)
+
+  params = jax.tree.map(lambda x: x[idx], policy.params)
+  low = None if policy.low_params is None else jax.tree.map(lambda x: x[idx], policy.low_params)
+  keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(key), i))(jnp.asarray(idx))
+  out = jax.device_get(jax.jit(jax.vmap(one))(params, low, keys))
+  per_seed = {"return": np.asarray(out["return"])}
+  if "success_max" in out:
+    per_seed["success"] = np.asarray(out["success_max"])
+  for extra in ("goal_dist", "waypoints_max"):
+    if extra in out:
+      per_seed[extra] = np.asarray(out[extra])
+  summary = {f"{k}_mean": float(np.mean(v)) for k, v in per_seed.items()}
+  summary |= {f"{k}_std": float(np.std(v)) for k, v in per_seed.items()}
+  return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **summary)
+
+
+def zero_shot_matrix(highs: dict[str, str | Path], lows: dict[str, str | Path], task: str,
+                     episodes: int = 100, backend: str = "auto", **kw) -> dict:
+  """Table-1-style matrix: rows = LL agents, columns = HL sources; entries (mean, std) of the task
+  metric (success rate where the task has one, else return)."""
+  cells = {}
+  for lname, lrun in lows.items():
+    for hname, hrun in highs.items():
+      ev = evaluate(compose(hrun, lrun), task, episodes=episodes, backend=backend, **kw)
+      metric = "success" if "success_mean" in ev else "return"
+      cells[(lname, hname)] = (ev[f"{metric}_mean"], ev[f"{metric}_std"], metric)
+  return dict(task=task, rows=list(lows), cols=list(highs), cells=cells)
+
+
+def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key: int = 0,
+               backend: str = "auto", **task_overrides) -> dict:
+  """One episode of an HL policy, recorded per LL step: goal-space xy (torso / effector / peg),
+  block xy, and each sub-goal, for top-down plots."""
+  if policy.low_meta is None:
+    raise ValueError("trajectory() needs a composed HL + LL policy (see compose)")
+  params = jax.tree.map(lambda x: x[seed_index], policy.params)
+  low = jax.tree.map(lambda x: x[seed_index], policy.low_params)
+  env = _env_for(policy, task, backend, low, record=True, **task_overrides)
+  apply = low_policy_fn(policy.meta["hidden_sizes"], policy.meta["obs_size"], 2)
+
+  def run(params, key):
+    s = env.reset(key)
+
+    def f(s, _):
+      n = env.step(s, apply(params, s.obs))
+      return n, (n.metrics["xy"], n.metrics["block"], n.metrics["active"], n.metrics["goal"], n.done,
+                 n.reward)
+    return jax.lax.scan(f, s, None, length=env.horizon)[1]
+
+  xy, block, active, goals, done, reward = jax.device_get(jax.jit(run)(params, jax.random.PRNGKey(key)))
+  end = int(np.argmax(done > 0)) + 1 if np.any(done > 0) else len(done)
+  keep = active[:end].reshape(-1) > 0
+  return dict(xy=xy[:end].reshape(-1, 2)[keep], block=block[:end].reshape(-1, 2)[keep],
+              goals=goals[:end], rewards=reward[:end], task=task or policy.meta["task"],
+              agent=policy.agent)

@@ -1,0 +1,124 @@
+"""The high level as an environment: a task plus a frozen low level (DESIGN: "HL env").
+
+One HL action is a relative sub-goal z in [-1, 1]^2, scaled to the agent's goal box (``delta_max``):
+``g = skill(obs_hi) + delta_max * z``. The frozen LL then acts deterministically for up to k steps in a
+``lax.scan`` (stopping early on a fall or a solved task, and with ``early_stop=True`` also on a
+reached sub-goal) and the HL transition carries the summed task reward. Sub-goal early stopping is
+off by default: with a horizon counted in HL steps and a per-LL-step penalty (Waypoint's -0.1 dist),
+an HL learns to emit sub-goals it has already reached, so that each HL step lasts one LL step and
+collects almost no penalty (measured: return stuck near 0 instead of learning to reach waypoints). The LL parameters live in the state, so every seed of a vmapped sweep
+can drive its own LL.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+
+from hdt.envs.core import State
+from hdt.envs.env import AgentTaskEnv
+
+LowPolicy = Callable[[Any, jax.Array], jax.Array]  # (params, obs_lo ++ (g - skill)) -> action
+
+# Per-LL-step metrics and how one HL step aggregates them.
+_REDUCE = {"success": jnp.max, "fall": jnp.max, "waypoints": jnp.sum}
+
+
+def skill(obs_hi: jax.Array) -> jax.Array:
+  """Goal-space point of a global observation (torso / end-effector / peg-tip xy)."""
+  return obs_hi[..., :2]
+
+
+def ll_observation(obs_lo, obs_hi, goal):
+  return jnp.concatenate([obs_lo, goal - skill(obs_hi)], axis=-1)
+
+
+class HighLevelEnv:
+  """Wraps an agent-task environment whose LL acts on sub-goals. Owns the HL time limit."""
+
+  def __init__(self, env: AgentTaskEnv, low_policy: LowPolicy, low_params: Any, k: int | None = None,
+               hl_horizon: int | None = None, early_stop: bool = False, record: bool = False,
+               delta_max: float | None = None):
+    self.env = env
+    self.low_policy = low_policy
+    self.low_params = low_params
+    self.k = int(k or env.agent.k)
+    if self.k <= 0:
+      raise ValueError(f"k (LL steps per HL action) must be positive, got {self.k}")
+    self.horizon = int(hl_horizon or env.task.hl_horizon)
+    self.delta_max = float(delta_max or env.agent.delta_max)
+    self.early_stop = early_stop
+    self.record = record
+    self.action_size = 2
+    self.observation_size = env.obs_hi_size
+    self.obs_hi_size, self.obs_lo_size = env.obs_hi_size, env.obs_lo_size
+
+  def _wrap(self, inner: State, low_params, **kw) -> State:
+    return State(physics=inner, obs=inner.obs_hi, obs_hi=inner.obs_hi, obs_lo=inner.obs_lo,
+                 next_obs=kw.get("next_obs", inner.obs_hi), next_obs_hi=kw.get("next_obs", inner.obs_hi),
+                 reward=kw.get("reward", jnp.float32(0.0)), done=kw.get("done", jnp.float32(0.0)),
+                 discount=kw.get("discount", jnp.float32(1.0)),
+                 task={"low": low_params, "steps": kw.get("steps", jnp.int32(0))},
+                 metrics=kw.get("metrics", {}), key=kw.get("key", inner.key))
+
+  def reset(self, key: jax.Array, low_params: Any = None) -> State:
+    inner = self.env.reset(key)
+    state = self._wrap(inner, self.low_params if low_params is None else low_params)
+    _, metrics = self._metrics_template(state)
+    return state.replace(metrics=metrics)
+
+  def _metrics_template(self, state):
+    m = {k: jnp.zeros((), jnp.float32) for k in state.physics.metrics}
+    m |= {"ll_steps": jnp.float32(0.0), "sub_goal_dist": jnp.float32(0.0)}
+    if self.record:
+      m |= {"xy": jnp.zeros((self.k, 2)), "block": jnp.zeros((self.k, 2)),
+            "active": jnp.zeros((self.k,)), "goal": jnp.zeros(2)}
+    return None, m
+
+  def step(self, state: State, action: jax.Array) -> State:
+    inner0 = state.physics
+    low = state.task["low"]
+    goal = skill(inner0.obs_hi) + self.delta_max * jnp.clip(action, -1.0, 1.0)
+    eps = self.env.agent.reach_eps
+
+    def ll_step(carry, _):
+      inner, active, ret, last_hi, ended, terminal = carry
+      a = self.low_policy(low, ll_observation(inner.obs_lo, inner.obs_hi, goal))
+      nxt = self.env.step(inner, a)
+      # Once stopped, the inner state is frozen (the step above is discarded).
+      inner = jax.tree.map(lambda n, o: jnp.where(active, n, o), nxt, inner)
+      ret = ret + jnp.where(active, nxt.reward, 0.0)
+      last_hi = jnp.where(active, nxt.next_obs_hi, last_hi)
+      ended = ended | (active & (nxt.done > 0))
+      terminal = terminal | (active & (nxt.discount == 0))
+      reached = jnp.linalg.norm(skill(nxt.next_obs_hi) - goal) < eps
+      out = {k: jnp.where(active, v, 0.0) for k, v in nxt.metrics.items()}
+      out["active"] = active.astype(jnp.float32)
+      if self.record:
+        out["xy"] = skill(nxt.next_obs_hi)
+        out["block"] = nxt.next_obs_hi[2:4] if nxt.next_obs_hi.shape[-1] >= 4 else jnp.zeros(2)
+      still = active & (nxt.done == 0)
+      if self.early_stop:
+        still = still & ~reached
+      return (inner, still, ret, last_hi, ended, terminal), out
+
+    carry0 = (inner0, jnp.bool_(True), jnp.float32(0.0), inner0.obs_hi, jnp.bool_(False), jnp.bool_(False))
+    (inner, _, ret, last_hi, ended, terminal), per = jax.lax.scan(ll_step, carry0, None, length=self.k)
+
+    steps = state.task["steps"] + 1
+    timeout = steps >= self.horizon
+    done = ended | timeout
+    key, k_restart = jax.random.split(state.key)
+    # The inner env auto-resets after its own terminal; the HL time limit restarts it here.
+    inner = self.env.restart(inner, k_restart, where=timeout & ~ended)
+    metrics = {k: _REDUCE.get(k, lambda x: jnp.sum(x * per["active"]) / jnp.maximum(per["active"].sum(), 1))(v)
+               for k, v in per.items() if k not in ("active", "xy", "block")}
+    metrics["ll_steps"] = per["active"].sum()
+    metrics["sub_goal_dist"] = jnp.linalg.norm(skill(last_hi) - goal)
+    if self.record:
+      metrics |= {"xy": per["xy"], "block": per["block"], "active": per["active"], "goal": goal}
+    return self._wrap(inner, low, next_obs=last_hi, reward=ret, done=done.astype(jnp.float32),
+                      discount=1.0 - terminal.astype(jnp.float32), steps=jnp.where(done, 0, steps),
+                      metrics=metrics, key=key)

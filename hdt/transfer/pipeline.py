@@ -1,0 +1,168 @@
+"""One call per stage: ``train_low``, ``train_high``, ``train_full``, each a vmapped seed sweep that
+writes a run directory (config.json, meta.json, metrics.csv, seed_<i>/ checkpoints)."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hdt.agents import networks as nets
+from hdt.agents import train as sac_train
+from hdt.agents.sac import SACConfig
+from hdt.envs import make
+from hdt.envs.agents import AGENTS
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import configs
+from hdt.transfer.hierarchy import HighLevelEnv
+
+
+@dataclasses.dataclass
+class RunResult:
+  run_dir: Path | None
+  params: Any  # {"policy", "q"} with a leading seed axis
+  history: dict[str, np.ndarray]  # leading seed axis
+  meta: dict
+
+
+def low_policy_fn(hidden_sizes, obs_size: int, action_size: int) -> Callable:
+  """Deterministic action of a saved SAC policy: tanh of the pre-tanh mean."""
+  net = nets.make_sac_networks(obs_size, action_size, tuple(hidden_sizes))
+  return lambda params, obs: nets.deterministic_action(net.policy_apply(params, obs)[0])
+
+
+def env_meta(env, level: str, config: SACConfig, **extra) -> dict:
+  agent = env.agent if hasattr(env, "agent") else env.env.agent
+  task = env.task if hasattr(env, "task") else env.env.task
+  return dict(level=level, agent=agent.name, task=task.name, family=agent.family,
+              goal_space=f"{agent.family}:{task.point_sensor}", delta_max=agent.delta_max, k=agent.k,
+              obs_size=int(env.observation_size), action_size=int(env.action_size),
+              obs_lo_size=int(env.obs_lo_size), obs_hi_size=int(env.obs_hi_size),
+              hidden_sizes=list(config.hidden_sizes), sac=dataclasses.asdict(config)) | extra
+
+
+def print_progress(total: int, quiet: bool = False, label: str = "") -> Callable[[int, dict], None]:
+  """A one-line progress report per chunk: steps, steps/s, ETA and the latest evaluation."""
+  t0 = time.perf_counter()
+
+  def progress(step, metrics):
+    if quiet:
+      return
+    dt = time.perf_counter() - t0
+    rate = step / max(dt, 1e-9)
+    evals = {k[5:]: float(np.mean(v)) for k, v in metrics.items()
+             if k in ("eval/return", "eval/success_max", "eval/goal_dist")}
+    ev = " ".join(f"{k}={v:.3g}" for k, v in evals.items())
+    frac = step / total
+    bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
+    print(f"{label} [{bar}] {step}/{total} steps {rate:.0f}/s ETA {(total - step) / max(rate, 1e-9):.0f}s {ev}",
+          file=sys.stderr, flush=True)
+  return progress
+
+
+def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str,
+         **plugins) -> RunResult:
+  seeds = list(range(seeds)) if isinstance(seeds, int) else [int(s) for s in seeds]
+  progress = print_progress(config.total_env_steps, quiet, label)
+  res = sac_train.run(env, config, seeds, progress_fn=progress, **plugins)
+  for k, v in res.history.items():
+    if np.issubdtype(np.asarray(v).dtype, np.floating) and not np.all(np.isfinite(v[..., -1:])) \
+        and k.startswith(("critic", "actor", "alpha", "loss")):
+      raise FloatingPointError(f"training diverged: metric {k!r} is not finite at the end of the run "
+                               f"(seeds {seeds}); lower the learning rate or reward scale")
+  run_dir = None
+  if out is not None:
+    run_dir = Path(out)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    ckpt.write_json_atomic(run_dir / "config.json", dataclasses.asdict(config))
+    ckpt.write_json_atomic(run_dir / "meta.json", dict(meta, seeds=seeds))
+    for i, s in enumerate(seeds):
+      ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], res.params), dict(meta, seed=s))
+    write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
+  return RunResult(run_dir, res.params, res.history, meta)
+
+
+def write_metrics_csv(path: Path, history: dict, seeds) -> None:
+  """Long format: one row per (seed, chunk) with training metrics, one per evaluation with eval/*."""
+  rows = []
+  train = {k: np.asarray(v) for k, v in history.items() if not k.startswith("eval/")}
+  ev = {k: np.asarray(v) for k, v in history.items() if k.startswith("eval/")}
+  for i, s in enumerate(seeds):
+    for c in range(next(iter(train.values())).shape[1] if train else 0):
+      rows.append({"seed": s, "kind": "train"} | {k: float(np.mean(v[i, c])) for k, v in train.items()})
+    for e in range(next(iter(ev.values())).shape[1] if ev else 0):
+      rows.append({"seed": s, "kind": "eval", "env_steps": float(ev["eval/env_steps"][i, e])}
+                  | {k: float(np.mean(v[i, e])) for k, v in ev.items()})
+  keys = list(dict.fromkeys(k for r in rows for k in r))
+  tmp = path.with_name("." + path.name + ".tmp")
+  with open(tmp, "w", newline="") as f:
+    w = csv.DictWriter(f, fieldnames=keys)
+    w.writeheader()
+    w.writerows(rows)
+  tmp.replace(path)
+
+
+def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, backend="auto",
+              quiet=False, **env_overrides) -> RunResult:
+  """Goal-conditioned LL of ``agent`` on its ``reach`` task (SPEC 3)."""
+  env = make(agent, "reach", backend=backend, **env_overrides)
+  config = config or configs.low_config(agent)
+  meta = env_meta(env, "low", config, env_overrides=env_overrides)
+  return _run(env, config, seeds, out, meta, quiet, f"low {agent}")
+
+
+def load_low(low: str | Path, seed_index: int = 0):
+  """(params, meta, policy_fn) of a saved LL, checked to be a low level."""
+  params, meta = ckpt.load(low, seed_index)
+  if meta.get("level") != "low":
+    raise ckpt.CheckpointError(f"{low} holds a {meta.get('level')!r}-level policy where a low level "
+                               f"was expected (train one with `hdt train low --agent ...`)")
+  fn = low_policy_fn(meta["hidden_sizes"], meta["obs_size"], meta["action_size"])
+  return params, meta, fn
+
+
+def high_env(task: str, low: str | Path, low_seed: int = 0, backend="auto", k=None, hl_horizon=None,
+             record=False, box: str = "own", delta_max=None, **task_overrides) -> HighLevelEnv:
+  """The HL env of ``task`` over the frozen LL saved in ``low``."""
+  params, meta, fn = load_low(low, low_seed)
+  inner = make(meta["agent"], task, backend=backend, hl_horizon=10**6,
+               **(meta.get("env_overrides") or {}) | task_overrides)
+  if inner.obs_lo_size + 2 != meta["obs_size"]:
+    raise ckpt.CheckpointError(
+        f"the LL in {low} observes {meta['obs_size']} numbers but {meta['agent']} on {task} gives "
+        f"{inner.obs_lo_size} + 2: was it trained with other options (e.g. rangefinders for steps)?")
+  horizon = hl_horizon or configs_task_horizon(task, task_overrides)
+  return HighLevelEnv(inner, fn, params["policy"], k=k or meta["k"], hl_horizon=horizon,
+                      record=record, delta_max=delta_max or meta["delta_max"])
+
+
+def configs_task_horizon(task: str, overrides: dict) -> int:
+  from hdt.envs.tasks import TASKS
+  return int(overrides.get("hl_horizon") or TASKS[task]().hl_horizon)
+
+
+def train_high(task: str, low: str | Path, config: SACConfig | None = None, seeds=1, out=None,
+               backend="auto", low_seed: int = 0, k: int | None = None, quiet=False,
+               **task_overrides) -> RunResult:
+  """HL SAC on ``task`` over the frozen LL in ``low`` (its seed ``low_seed`` drives every HL seed)."""
+  env = high_env(task, low, low_seed, backend, k=k, **task_overrides)
+  config = config or configs.high_config(task, env.k)
+  meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
+                  low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides)
+  return _run(env, config, seeds, out, meta, quiet, f"high {task}")
+
+
+def train_full(agent: str, task: str, config: SACConfig | None = None, seeds=1, out=None,
+               backend="auto", quiet=False, **env_overrides) -> RunResult:
+  """The flat 'Full' baseline: SAC on the task with the agent's own torques."""
+  env = make(agent, task, backend=backend, **env_overrides)
+  config = config or configs.full_config(agent, task)
+  meta = env_meta(env, "full", config, env_overrides=env_overrides)
+  return _run(env, config, seeds, out, meta, quiet, f"full {agent}/{task}")
