@@ -22,7 +22,7 @@ from mujoco import rollout
 
 import hdt.envs as E
 
-SCENES = [] or [("point", "reach"), ("point", "maze"), ("ant", "reach"), ("ant", "maze"), ("ant", "steps"),
+SCENES = [("point", "reach"), ("point", "maze"), ("ant", "reach"), ("ant", "maze"), ("ant", "steps"),
           ("ant3", "reach"), ("ant2", "reach"), ("quadruped", "reach"), ("arm_point", "push1"),
           ("arm2", "push1"), ("arm3", "push1"), ("arm3", "insert"), ("arm4", "push1"), ("arm4", "insert")]
 
