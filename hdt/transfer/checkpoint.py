@@ -50,7 +50,7 @@ def seed_dir(run_dir: Path, seed_index: int) -> Path:
 
 def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict) -> Path:
   """Atomically write one seed's parameters and metadata into ``run_dir/seed_<i>``."""
-  run_dir = Path(run_dir)
+  run_dir = Path(run_dir).resolve()  # orbax wants absolute paths
   run_dir.mkdir(parents=True, exist_ok=True)
   final = seed_dir(run_dir, seed_index)
   tmp = Path(tempfile.mkdtemp(dir=run_dir, prefix=f".{final.name}.", suffix=".tmp"))
@@ -118,7 +118,7 @@ def load_meta(run_dir: str | Path, seed_index: int = 0) -> dict:
 def load(run_dir: str | Path, seed_index: int = 0) -> tuple[Any, dict]:
   """Returns (params, meta) of one seed."""
   meta = load_meta(run_dir, seed_index)
-  d = _resolve_seed_dir(Path(run_dir), seed_index)
+  d = _resolve_seed_dir(Path(run_dir).resolve(), seed_index)
   try:
     params = ocp.PyTreeCheckpointer().restore(d / "params")
   except Exception as e:  # orbax raises several types for damaged files
