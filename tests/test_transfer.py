@@ -99,3 +99,16 @@ def test_composing_incompatible_levels_fails_clearly(pm_low, pm_high, tmp_path):
     compose(pm_high.run_dir, arm.run_dir)
   with pytest.raises(ckpt.CheckpointError, match="compose needs an HL"):
     compose(pm_low.run_dir, pm_low.run_dir)
+
+
+def test_save_to_relative_dir_and_killed_save_leaves_previous(tmp_path, monkeypatch):
+  monkeypatch.chdir(tmp_path)
+  tree = {"w": np.arange(6, dtype=np.float32).reshape(2, 3)}
+  ckpt.save("rel_run", 0, tree, {"level": "low"})
+  params, meta = ckpt.load("rel_run", 0)
+  np.testing.assert_array_equal(params["w"], tree["w"])
+  assert meta["level"] == "low"
+  # A save interrupted between its two renames leaves seed_0.old: still loadable.
+  (tmp_path / "rel_run" / "seed_0").rename(tmp_path / "rel_run" / "seed_0.old")
+  params, _ = ckpt.load("rel_run", 0)
+  np.testing.assert_array_equal(params["w"], tree["w"])

@@ -1,0 +1,154 @@
+"""KL-regularised HL finetuning: the KL term, its annealed weight, and that a large beta keeps the
+finetuned HL close to the transferred one."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hdt.agents import networks as nets
+from hdt.agents.kl import linear_anneal, make_kl_regularizer
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import configs
+from hdt.transfer.finetune import finetune_high
+from hdt.transfer.pipeline import train_high, train_low
+
+OBS, ACT = 5, 2
+
+
+def np_kl(mp, sp, mq, sq):
+  """KL(N(mp, sp^2) || N(mq, sq^2)) for diagonal Gaussians, summed over the last axis."""
+  return np.sum(np.log(sq / sp) + (sp ** 2 + (mp - mq) ** 2) / (2 * sq ** 2) - 0.5, axis=-1)
+
+
+@pytest.fixture(scope="module")
+def two_policies():
+  net = nets.make_sac_networks(OBS, ACT, (16, 16))
+  pa = net.policy_init(jax.random.PRNGKey(1))
+  pb = net.policy_init(jax.random.PRNGKey(2))
+  obs = jax.random.normal(jax.random.PRNGKey(3), (32, OBS))
+  return net, pa, pb, obs
+
+
+@pytest.mark.parametrize("mode,mean_only", [("forward", False), ("reverse", False),
+                                            ("forward", True), ("reverse", True)])
+def test_kl_regularizer_matches_closed_form(two_policies, mode, mean_only):
+  net, pa, pb, obs = two_policies
+  reg = make_kl_regularizer(net.policy_apply, pa, mode=mode, mean_only=mean_only)
+  assert float(reg(pa, obs)) == pytest.approx(0.0, abs=1e-6)
+  la, sa = map(np.asarray, net.policy_apply(pa, obs))  # reference (A)
+  lb, sb = map(np.asarray, net.policy_apply(pb, obs))  # current (B)
+  if mean_only:
+    sb = sa
+  want = np.mean(np_kl(lb, sb, la, sa) if mode == "forward" else np_kl(la, sa, lb, sb))
+  got = float(jax.jit(reg)(pb, obs))
+  assert want > 0.01
+  assert got == pytest.approx(want, rel=1e-4)
+  # The gradient flows into the current policy only and vanishes at the reference.
+  g = jax.grad(reg)(pb, obs)
+  assert sum(float(jnp.sum(jnp.abs(x))) for x in jax.tree.leaves(g)) > 0
+  g0 = jax.grad(reg)(pa, obs)
+  assert max(float(jnp.max(jnp.abs(x))) for x in jax.tree.leaves(g0)) < 1e-5
+
+
+def test_forward_and_reverse_differ(two_policies):
+  net, pa, pb, obs = two_policies
+  f = float(make_kl_regularizer(net.policy_apply, pa, "forward")(pb, obs))
+  r = float(make_kl_regularizer(net.policy_apply, pa, "reverse")(pb, obs))
+  assert abs(f - r) > 1e-3 * max(f, r)
+  with pytest.raises(ValueError, match="mode"):
+    make_kl_regularizer(net.policy_apply, pa, "sideways")
+
+
+def test_linear_anneal():
+  s = jax.jit(linear_anneal(2.0, 1000))
+  for steps, want in [(0, 2.0), (250, 1.5), (500, 1.0), (750, 0.5), (1000, 0.0), (5000, 0.0)]:
+    assert float(s(jnp.int32(steps))) == pytest.approx(want, abs=1e-6), steps
+  assert float(linear_anneal(1.0, 0)(jnp.int32(0))) == 0.0
+
+
+# ------------------------------------------------------------------------------------------------
+# End to end on point mass: A = PM LL + PM HL (trained briefly); finetune A's HL on the same LL.
+
+LOW_STEPS, HIGH_STEPS, FT_STEPS = 3000, 1000, 1000
+
+
+@pytest.fixture(scope="module")
+def pm_runs(tmp_path_factory):
+  root = tmp_path_factory.mktemp("ft")
+  low_cfg = configs.low_config("point", total_env_steps=LOW_STEPS, num_envs=8, updates_per_step=8,
+                               steps_per_chunk=LOW_STEPS // 8, num_eval_episodes=4)
+  low = train_low("point", low_cfg, seeds=1, out=root / "low", quiet=True)
+  high_cfg = configs.high_config("waypoint", 32, total_env_steps=HIGH_STEPS, num_envs=8,
+                                 updates_per_step=8, steps_per_chunk=HIGH_STEPS // 8,
+                                 num_eval_episodes=4)
+  high = train_high("waypoint", low.run_dir, high_cfg, seeds=1, out=root / "high", quiet=True)
+  return root, low, high, high_cfg
+
+
+def _ft_config(high_cfg):
+  return configs.replace(high_cfg, total_env_steps=FT_STEPS, steps_per_chunk=FT_STEPS // 8,
+                         actor_lr=0.01, critic_lr=0.01, alpha_lr=0.01)
+
+
+def _mean_kl_to_a(res, high_run, obs):
+  a_params, meta = ckpt.load(high_run, 0)
+  net = nets.make_sac_networks(meta["obs_size"], meta["action_size"], tuple(meta["hidden_sizes"]))
+  reg = make_kl_regularizer(net.policy_apply, a_params["policy"], "forward")
+  return float(reg(jax.tree.map(lambda x: x[0], res.params["policy"]), obs))
+
+
+def test_large_beta_keeps_finetuned_hl_close_to_a(pm_runs):
+  root, low, high, high_cfg = pm_runs
+  cfg = _ft_config(high_cfg)
+  common = dict(config=cfg, seeds=1, anneal_frac=1.0, quiet=True)
+  tied = finetune_high(high.run_dir, low.run_dir, "waypoint", kl=10.0, out=root / "ft_kl", **common)
+  free = finetune_high(high.run_dir, low.run_dir, "waypoint", kl=0.0, out=root / "ft_free", **common)
+
+  meta = tied.meta
+  obs = jax.random.uniform(jax.random.PRNGKey(7), (256, meta["obs_size"]), minval=-3, maxval=3)
+  kl_tied, kl_free = _mean_kl_to_a(tied, high.run_dir, obs), _mean_kl_to_a(free, high.run_dir, obs)
+  assert np.isfinite(kl_tied) and np.isfinite(kl_free)
+  assert kl_tied < 0.5 * kl_free, (kl_tied, kl_free)
+
+  # The KL term was active (weight annealed from 10 towards 0) only in the tied run.
+  w = tied.history["regularizer_weight"][0]
+  assert w[0] > 5 and w[-1] < w[0]
+  assert np.all(free.history["regularizer_weight"][0] == 1.0)  # default schedule, no regulariser
+  assert np.all(free.history["regularizer"][0] == 0.0)
+
+  # Checkpoint metadata says where it came from.
+  _, m = ckpt.load(tied.run_dir, 0)
+  assert m["level"] == "high" and m["kl"] == 10.0 and m["mode"] == "forward"
+  assert m["finetuned_from"]["path"] == str(high.run_dir)
+
+
+def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypatch):
+  root, low, high, high_cfg = pm_runs
+  # Every seed's initial policy is A's HL (one A seed, cycled), with a fresh optimiser state.
+  from hdt.transfer import finetune as ft
+  captured = {}
+  monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw))
+  finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=_ft_config(high_cfg), seeds=2,
+                quiet=True)
+  a_params, _ = ckpt.load(high.run_dir, 0)
+  init = captured["initial_state"].agent.policy_params
+  for a, b in zip(jax.tree.leaves(a_params["policy"]), jax.tree.leaves(init)):
+    np.testing.assert_array_equal(np.asarray(b), np.stack([a, a]))
+  monkeypatch.undo()
+
+  with pytest.raises(ckpt.CheckpointError, match="needs an HL"):
+    finetune_high(low.run_dir, low.run_dir, "waypoint", quiet=True)
+  with pytest.raises(ValueError, match="hidden sizes"):
+    finetune_high(high.run_dir, low.run_dir, "waypoint", quiet=True,
+                  config=configs.replace(_ft_config(high_cfg), hidden_sizes=(8, 8)))
+  # An HL whose obs size does not fit the env: fake it through its metadata.
+  real_load_all = ckpt.load_all
+
+  def bad_load_all(run):
+    p, metas = real_load_all(run)
+    return p, [dict(m, obs_size=m["obs_size"] + 3) for m in metas]
+
+  monkeypatch.setattr(ckpt, "load_all", bad_load_all)
+  with pytest.raises(ckpt.CheckpointError, match="observations"):
+    finetune_high(high.run_dir, low.run_dir, "waypoint", quiet=True)
