@@ -12,7 +12,7 @@ import pytest
 from hdt.agents import discriminator as D
 from hdt.agents.replay import Transition
 from hdt.transfer import configs
-from hdt.transfer.align import align_low
+from hdt.transfer.align import align_low, collect_offline
 from hdt.transfer.pipeline import train_low
 
 
@@ -101,7 +101,7 @@ def tiny_low(tmp_path_factory):
 
 
 def test_collect_offline_gives_goal_space_taus(tiny_low):
-  tau = D.collect_offline(tiny_low.run_dir, 300, jax.random.PRNGKey(0), num_envs=16)
+  tau = collect_offline(tiny_low.run_dir, 300, jax.random.PRNGKey(0), num_envs=16)
   assert tau.shape == (300, 4) and np.all(np.isfinite(tau))
   # goals are uniform in the +-4 box around the start, and one step moves the point a little
   assert np.max(np.abs(tau[:16, :2])) <= 4.0 + 1e-3 and np.std(tau[:, 0]) > 0.5

@@ -110,8 +110,14 @@ def write_metrics_csv(path: Path, history: dict, seeds) -> None:
 
 
 def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, backend="auto",
-              quiet=False, **env_overrides) -> RunResult:
-  """Goal-conditioned LL of ``agent`` on its ``reach`` task (SPEC 3)."""
+              quiet=False, imitate=None, disc=None, **env_overrides) -> RunResult:
+  """Goal-conditioned LL of ``agent`` on its ``reach`` task (SPEC 3). With ``imitate=<LL run of A>``
+  the LL is aligned to A's behaviour by a discriminator (Algorithm 1, ``hdt.transfer.align``)."""
+  if imitate is not None:
+    from hdt.transfer.align import align_low  # align builds on this module
+    kw = {} if disc is None else {"disc": disc}
+    return align_low(agent, imitate, config, seeds=seeds, out=out, backend=backend, quiet=quiet,
+                     **kw, **env_overrides)
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = config or configs.low_config(agent)
   meta = env_meta(env, "low", config, env_overrides=env_overrides)

@@ -1,0 +1,75 @@
+"""Discriminative LL alignment (paper Algorithm 1): train B's LL on its reach task with the reward
+``r_task - w log q(M=B|tau)`` from a discriminator against A's offline goal-reaching behaviour."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from hdt.agents import discriminator as disc_lib
+from hdt.agents.discriminator import DiscConfig
+from hdt.agents.sac import SACConfig
+from hdt.envs import make
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import configs
+from hdt.transfer.pipeline import RunResult, _run, env_meta, load_low
+
+
+def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
+              disc: DiscConfig = DiscConfig(), seeds=1, out=None, n_offline: int = 20_000,
+              backend: str = "auto", quiet: bool = False, imitate_seed: int = 0,
+              offline_seed: int = 0, **env_overrides) -> RunResult:
+  """Goal-conditioned LL of ``agent`` aligned to the LL saved in ``imitate`` (agent A).
+
+  A's taus: ``n_offline`` transitions of A's deterministic LL on uniformly sampled goals
+  (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by
+  all seeds. Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
+  ``discriminator`` (the DiscConfig).
+  """
+  _, meta_a, _ = load_low(imitate, imitate_seed)
+  env = make(agent, "reach", backend=backend, **env_overrides)
+  config = config or configs.low_config(agent)
+  meta = env_meta(env, "low", config, env_overrides=env_overrides)
+  if meta_a.get("family") != meta["family"] or meta_a.get("goal_space") != meta["goal_space"]:
+    raise ValueError(
+        f"cannot align {agent!r} to the LL in {imitate} ({meta_a.get('agent')!r}): goal spaces "
+        f"differ ({meta['goal_space']} vs {meta_a.get('goal_space')}); A and B must both be nav or "
+        f"both manip agents")
+  if env.observation_size < 2 or meta_a["obs_size"] < 2:
+    raise ckpt.CheckpointError("LL observations must end with the 2 goal-space entries g - s")
+  tau_a = collect_offline(imitate, n_offline, jax.random.PRNGKey(offline_seed),
+                                   backend=backend, seed_index=imitate_seed)
+  al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
+                               tau_scale=float(meta_a.get("delta_max") or 1.0))
+  meta = dict(meta, aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
+                                    n_offline=int(n_offline), offline_seed=offline_seed),
+              discriminator=dataclasses.asdict(disc))
+  return _run(env, config, seeds, out, meta, quiet, f"align {agent}<-{meta_a['agent']}",
+              reward_fn=al.reward_fn, aux_init=al.aux_init, aux_update=al.aux_update)
+
+
+def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: int = 64,
+                    seed_index: int = 0) -> np.ndarray:
+  """(n, 4) taus of A's saved LL (deterministic actions) on its reach task (uniform goals in its
+  goal box, the LL training episode structure), ``num_envs`` envs in parallel."""
+  params, meta, fn = load_low(low_run_dir, seed_index)
+  env = make(meta["agent"], "reach", backend=backend, **(meta.get("env_overrides") or {}))
+  policy = params["policy"]
+  steps = -(-int(n) // num_envs)
+  v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+
+  @jax.jit
+  def rollout(key):
+    s0 = v_reset(jax.random.split(key, num_envs))
+
+    def step(s, _):
+      nxt = v_step(s, fn(policy, s.obs))
+      return nxt, disc_lib.tau_from(s.obs, nxt.next_obs)
+
+    _, taus = jax.lax.scan(step, s0, None, length=steps)
+    return taus.reshape(-1, disc_lib.TAU_SIZE)
+
+  return np.asarray(rollout(key))[:n]
