@@ -11,7 +11,7 @@ from hdt.agents.kl import linear_anneal, make_kl_regularizer
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.finetune import finetune_high
-from hdt.transfer.pipeline import train_high, train_low
+from hdt.transfer.pipeline import high_env, train_high, train_low
 
 OBS, ACT = 5, 2
 
@@ -101,19 +101,21 @@ def _mean_kl_to_a(res, high_run, obs):
 def test_large_beta_keeps_finetuned_hl_close_to_a(pm_runs):
   root, low, high, high_cfg = pm_runs
   cfg = _ft_config(high_cfg)
-  common = dict(config=cfg, seeds=1, anneal_frac=1.0, quiet=True)
+  # lr 0.01 (the paper's finetuning lr) drifts fast; anneal_frac=10 keeps beta near 10 (10 -> 9) over
+  # this short run so the comparison is about the KL term, not about how fast it was switched off.
+  common = dict(config=cfg, seeds=1, anneal_frac=10.0, quiet=True)
   tied = finetune_high(high.run_dir, low.run_dir, "waypoint", kl=10.0, out=root / "ft_kl", **common)
   free = finetune_high(high.run_dir, low.run_dir, "waypoint", kl=0.0, out=root / "ft_free", **common)
 
-  meta = tied.meta
-  obs = jax.random.uniform(jax.random.PRNGKey(7), (256, meta["obs_size"]), minval=-3, maxval=3)
+  env = high_env("waypoint", low.run_dir)  # HL observations of start states
+  obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(7), 256)).obs
   kl_tied, kl_free = _mean_kl_to_a(tied, high.run_dir, obs), _mean_kl_to_a(free, high.run_dir, obs)
   assert np.isfinite(kl_tied) and np.isfinite(kl_free)
   assert kl_tied < 0.5 * kl_free, (kl_tied, kl_free)
 
   # The KL term was active (weight annealed from 10 towards 0) only in the tied run.
   w = tied.history["regularizer_weight"][0]
-  assert w[0] > 5 and w[-1] < w[0]
+  assert 9.0 < w[-1] < 10.0  # beta(t) = 10 * (1 - t / 10000) averaged over the learning steps
   assert np.all(free.history["regularizer_weight"][0] == 1.0)  # default schedule, no regulariser
   assert np.all(free.history["regularizer"][0] == 0.0)
 
