@@ -1,0 +1,73 @@
+"""KL regularisation towards a frozen reference policy, and the annealed weight of that term.
+
+Used for KL-regularised finetuning (SPEC section 4): the actor loss of SAC gets
+``beta(env_steps) * KL(pi_B(.|s) || pi_A(.|s))`` where both policies are the *pre-tanh* diagonal
+Gaussians ``N(loc, scale)`` their networks output (the tanh is the same bijection for both, so the KL
+of the squashed distributions equals the KL of the pre-tanh ones), and ``beta`` decays linearly to 0.
+
+``make_kl_regularizer`` returns a function with the ``actor_regularizer(policy_params, obs) -> scalar``
+signature of :func:`hdt.agents.sac.make_losses` / :func:`hdt.agents.train.make_train`;
+``linear_anneal`` returns an ``actor_regularizer_schedule(env_steps) -> weight``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from hdt.agents import networks as nets
+
+Params = Any
+MODES = ("forward", "reverse")
+
+
+def make_kl_regularizer(
+    policy_apply: Callable[[Params, jax.Array], tuple[jax.Array, jax.Array]],
+    reference_params: Params,
+    mode: str = "forward",
+    mean_only: bool = False,
+) -> Callable[[Params, jax.Array], jax.Array]:
+  """``regularizer(policy_params, obs) -> scalar``: batch mean of a closed-form Gaussian KL.
+
+  ``pi`` = ``policy_apply(policy_params, obs)`` (the policy being trained, B) and
+  ``ref`` = ``policy_apply(reference_params, obs)`` (frozen: a closure constant under
+  ``stop_gradient``, e.g. the transferred HL of A), both pre-tanh ``(loc, scale)``.
+
+  mode="forward": KL(pi || ref)  (= KL(pi_B || pi_A), the paper's term)
+  mode="reverse": KL(ref || pi)
+  mean_only=True: both scales are set to the reference's scale, so only the means matter:
+      sum_d (loc_pi - loc_ref)^2 / (2 scale_ref^2)   (the same for both modes).
+  The KL is summed over action dimensions and averaged over all leading (batch) axes of ``obs``.
+  """
+  if mode not in MODES:
+    raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi || ref)) or 'reverse' (KL(ref || pi))")
+  reference_params = jax.tree_util.tree_map(jnp.asarray, reference_params)
+
+  def regularizer(policy_params: Params, obs: jax.Array) -> jax.Array:
+    loc, scale = policy_apply(policy_params, obs)
+    ref_loc, ref_scale = jax.lax.stop_gradient(policy_apply(reference_params, obs))
+    if mean_only:
+      scale = ref_scale
+    if mode == "forward":
+      kl = nets.gaussian_kl(loc, scale, ref_loc, ref_scale)
+    else:
+      kl = nets.gaussian_kl(ref_loc, ref_scale, loc, scale)
+    return jnp.mean(kl)
+
+  return regularizer
+
+
+def linear_anneal(beta: float, end_steps: float) -> Callable[[jax.Array], jax.Array]:
+  """``schedule(env_steps)``: ``beta`` at 0 env steps, linearly down to 0 at ``end_steps``, then 0.
+
+  ``end_steps <= 0`` gives the constant 0 (no regularisation at all).
+  """
+  beta = float(beta)
+  end_steps = int(round(end_steps))
+  if end_steps <= 0 or beta == 0.0:
+    return lambda env_steps: jnp.zeros((), jnp.float32)
+  sched = optax.linear_schedule(init_value=beta, end_value=0.0, transition_steps=end_steps)
+  return lambda env_steps: jnp.asarray(sched(env_steps), jnp.float32)

@@ -1,0 +1,137 @@
+"""Finetuning a transferred high level on a new low level, optionally KL-regularised (SPEC section 4).
+
+``finetune_high(high=A's HL run, low=B's LL run, task)`` trains SAC on the HL env of ``task`` over B's
+frozen LL, starting the policy from A's HL and adding ``beta * KL(pi_B || pi_A)`` (pre-tanh diagonal
+Gaussians, closed form) to the actor loss, ``beta`` annealed linearly from ``kl`` to 0 over the first
+``anneal_frac`` of training. ``kl=0`` is plain finetuning.
+
+The other baselines need no new code: "HL from scratch on B's LL" is
+:func:`hdt.transfer.pipeline.train_high`, "Full" is :func:`hdt.transfer.pipeline.train_full`.
+
+Seeds: HL seed ``i`` starts from A's HL seed ``i % n_A``. The frozen KL reference is A's seed
+``reference_seed`` (default 0) for every seed: the regulariser is a closure over one parameter set
+(``make_train`` has no per-seed plug-in state for it), so with several A seeds, seeds ``i > 0`` start
+from A's seed ``i`` but are pulled towards A's seed 0. Only the policy is transferred; the critics,
+temperature and replay buffer start fresh.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hdt.agents import train as sac_train
+from hdt.agents.kl import MODES, linear_anneal, make_kl_regularizer
+from hdt.agents.sac import SACConfig, make_optimizers
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import configs
+from hdt.transfer.pipeline import RunResult, _run, env_meta, high_env, train_high
+
+train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
+
+
+def load_high(high: str | Path):
+  """(policy params stacked over A's seeds, metas) of a saved HL, checked to be a high level."""
+  params, metas = ckpt.load_all(high)
+  level = metas[0].get("level")
+  if level != "high":
+    raise ckpt.CheckpointError(f"{high} holds a {level!r}-level policy; finetune_high needs an HL "
+                               f"(from `hdt train high`) as high=")
+  return params["policy"], metas
+
+
+def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
+                  config: SACConfig | None = None, seeds=1, out=None, anneal_frac: float = 0.5,
+                  mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
+                  lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
+                  **task_overrides) -> RunResult:
+  """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
+
+  kl: initial weight beta of the KL term (paper: 1 for Waypoint / manipulation, 0.01 for Maze);
+    0 = plain finetuning (no regulariser).
+  anneal_frac: beta goes linearly to 0 at ``anneal_frac * config.total_env_steps`` env steps.
+  mode: "forward" KL(pi_B || pi_A) (paper) or "reverse" KL(pi_A || pi_B); mean_only: only the means
+    are tied (both scales set to A's), see :func:`hdt.agents.kl.make_kl_regularizer`.
+  config: SAC config; default :func:`configs.high_config` of ``task`` with A's hidden sizes.
+  lr: if given, overrides actor, critic and temperature learning rates (paper: 0.01 Waypoint /
+    manipulation, 0.001 Maze).
+  low_seed: the seed of ``low`` whose LL drives every HL seed (as in ``train_high``).
+  reference_seed: A's seed used as the frozen KL reference for every seed.
+  """
+  if mode not in MODES:
+    raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi_B || pi_A)) or 'reverse' (KL(pi_A || pi_B))")
+  if not (kl >= 0 and np.isfinite(kl)):
+    raise ValueError(f"kl={kl}: the KL weight must be a finite number >= 0 (0 = plain finetuning)")
+  if not (anneal_frac >= 0 and np.isfinite(anneal_frac)):
+    raise ValueError(f"anneal_frac={anneal_frac}: must be >= 0 (fraction of training over which "
+                     f"beta decays to 0)")
+  a_policy, a_metas = load_high(high)
+  am = a_metas[0]
+  n_a = len(a_metas)
+  if not 0 <= reference_seed < n_a:
+    raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
+
+  env = high_env(task, low, low_seed, backend, **task_overrides)
+  fam = env.env.agent.family
+  if am.get("family") != fam:
+    raise ValueError(f"goal spaces do not match: the HL in {high} was trained for the {am.get('family')!r} "
+                     f"family, the LL in {low} belongs to {fam!r}; finetune an HL of the same family")
+  if am["obs_size"] != env.observation_size or am["action_size"] != env.action_size:
+    raise ckpt.CheckpointError(
+        f"the HL in {high} maps {am['obs_size']} observations to {am['action_size']} actions but the HL "
+        f"env of {task} over {low} has {env.observation_size} observations and {env.action_size} "
+        f"actions (was A's HL trained on another task or with other task options?)")
+
+  a_hidden = tuple(int(h) for h in am["hidden_sizes"])
+  if config is None:
+    config = configs.high_config(task, env.k, hidden_sizes=a_hidden)
+  if tuple(config.hidden_sizes) != a_hidden:
+    raise ValueError(f"config.hidden_sizes={config.hidden_sizes} but the HL in {high} has hidden sizes "
+                     f"{a_hidden}; the finetuned policy must have A's architecture")
+  if lr is not None:
+    config = configs.replace(config, actor_lr=lr, critic_lr=lr, alpha_lr=lr)
+
+  seed_list = list(range(seeds)) if isinstance(seeds, int) else [int(s) for s in seeds]
+  if not seed_list:
+    raise ValueError("seeds must be a positive int or a non-empty list of ints")
+  n = len(seed_list)
+  anneal_steps = anneal_frac * config.total_env_steps
+
+  plugins = {}
+  if kl > 0:
+    networks = sac_train.make_train(env, config).networks  # cheap: builds pure functions only
+    reference = jax.tree.map(lambda x: jnp.asarray(x[reference_seed], jnp.float32), a_policy)
+    plugins = dict(
+        networks=networks,
+        actor_regularizer=make_kl_regularizer(networks.policy_apply, reference, mode, mean_only),
+        actor_regularizer_schedule=linear_anneal(kl, anneal_steps),
+    )
+  trainer = sac_train.make_train(env, config, **plugins)
+
+  # Fresh SAC state per seed, then the policy (and its Adam state) replaced by A's HL.
+  ts = sac_train.vmapped(trainer).init(sac_train.seed_keys(seed_list))
+  pick = np.arange(n) % n_a
+  init_policy = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[pick], jnp.float32), a_policy)
+  fresh = ts.agent.policy_params
+  if jax.tree.structure(init_policy) != jax.tree.structure(fresh) or any(
+      a.shape != b.shape for a, b in zip(jax.tree.leaves(init_policy), jax.tree.leaves(fresh))):
+    raise ckpt.CheckpointError(f"the policy parameters in {high} do not fit a {a_hidden} SAC policy for "
+                               f"{env.observation_size} -> {env.action_size}")
+  pi_opt = make_optimizers(config)[0]
+  agent = ts.agent.replace(policy_params=init_policy,
+                           policy_opt_state=jax.vmap(pi_opt.init)(init_policy))
+  ts = ts.replace(agent=agent)
+
+  meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
+                  low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides,
+                  finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
+                                      seeds=n_a, init_seed_indices=pick.tolist(),
+                                      reference_seed=reference_seed),
+                  kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
+                  anneal_env_steps=float(anneal_steps))
+  label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
+  return _run(env, config, seed_list, out, meta, quiet, label, initial_state=ts, trainer=trainer)
