@@ -183,3 +183,14 @@ def test_vmap_equals_single_runs(agent, task):
   single = jax.jit(run)
   for i in range(0, 64, 9):
     np.testing.assert_allclose(batched[i], single(keys[i], actions[:, i]), rtol=1e-5, atol=1e-5)
+
+
+def test_steps_ll_pretraining_terrain_matches_steps_observations():
+  # The Steps LL is pretrained on random barriers with the same 16 rangefinders it has on Steps.
+  pre = E.make("ant", "reach", terrain="steps")
+  assert pre.obs_lo_size == E.make("ant", "steps").obs_lo_size == OBS_LO["ant"] + 16
+  s = jax.jit(pre.step)(jax.jit(pre.reset)(jax.random.PRNGKey(0)), jnp.zeros(8))
+  rays = s.obs_lo[-16:]
+  assert bool(jnp.all((rays > 0) & (rays < 4.0)))  # every ray sees the floor (or a leg) in range
+  with pytest.raises(ValueError, match="terrain"):
+    E.make("ant", "reach", terrain="lava")

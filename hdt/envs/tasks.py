@@ -65,6 +65,20 @@ class Reach(Task):
   """LL goal reaching: a relative goal z in the agent's goal box (SPEC 3)."""
 
   name: str = "reach"
+  terrain: str = "plane"  # "steps": random low barriers and 16 rangefinders (the Steps LL)
+
+  def __post_init__(self):
+    if self.terrain not in ("plane", "steps"):
+      raise ValueError(f"reach terrain must be 'plane' or 'steps', got {self.terrain!r}")
+    if self.terrain == "steps":
+      object.__setattr__(self, "rangefinders", Steps.rangefinders)
+
+  def scene(self, agent):
+    if self.terrain == "steps":
+      if agent.family != "nav":
+        raise ValueError("terrain='steps' is for navigation agents")
+      return "random_steps.xml"
+    return super().scene(agent)
 
   def horizon(self, agent):
     return agent.ll_horizon
