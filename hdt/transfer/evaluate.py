@@ -14,8 +14,7 @@ from hdt.agents.sac import SACConfig
 from hdt.agents.train import make_train
 from hdt.envs import make
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer.hierarchy import HighLevelEnv
-from hdt.transfer.pipeline import configs_task_horizon, low_policy_fn
+from hdt.transfer.pipeline import build_high_env, low_policy_fn
 
 _GOAL_SPACE = {"nav": "navigation (torso xy)", "manip": "manipulation (end-effector xy)"}
 
@@ -87,16 +86,12 @@ def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, re
                        f"on {task} gives {env.observation_size}")
     return env
   task = task or policy.meta["task"]
-  lm = policy.low_meta
-  inner = make(lm["agent"], task, backend=backend, hl_horizon=10**6,
-               **(lm.get("env_overrides") or {}) | task_overrides)
-  if inner.obs_hi_size != policy.meta["obs_size"]:
+  env = build_high_env(policy.low_meta, low_params, task, backend, record=record,
+                       delta_max=policy.delta_max, **task_overrides)
+  if env.observation_size != policy.meta["obs_size"]:
     raise ValueError(f"the HL observes {policy.meta['obs_size']} numbers but {task} gives "
-                     f"{inner.obs_hi_size} (was the HL trained on another task?)")
-  fn = low_policy_fn(lm["hidden_sizes"], lm["obs_size"], lm["action_size"])
-  horizon = configs_task_horizon(task, task_overrides)  # inner's own horizon is disabled above
-  return HighLevelEnv(inner, fn, low_params, k=lm["k"], hl_horizon=horizon, record=record,
-                      delta_max=policy.delta_max)
+                     f"{env.observation_size} (was the HL trained on another task?)")
+  return env
 
 
 def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds=None,

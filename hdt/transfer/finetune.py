@@ -17,7 +17,6 @@ temperature and replay buffer start fresh.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import jax

@@ -11,14 +11,13 @@ from pathlib import Path
 from typing import Any, Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from hdt.agents import networks as nets
 from hdt.agents import train as sac_train
 from hdt.agents.sac import SACConfig
 from hdt.envs import make
-from hdt.envs.agents import AGENTS
+from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.hierarchy import HighLevelEnv
@@ -134,24 +133,26 @@ def load_low(low: str | Path, seed_index: int = 0):
   return params, meta, fn
 
 
-def high_env(task: str, low: str | Path, low_seed: int = 0, backend="auto", k=None, hl_horizon=None,
-             record=False, box: str = "own", delta_max=None, **task_overrides) -> HighLevelEnv:
-  """The HL env of ``task`` over the frozen LL saved in ``low``."""
-  params, meta, fn = load_low(low, low_seed)
-  inner = make(meta["agent"], task, backend=backend, hl_horizon=10**6,
-               **(meta.get("env_overrides") or {}) | task_overrides)
-  if inner.obs_lo_size + 2 != meta["obs_size"]:
+def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None, hl_horizon=None,
+                   record=False, delta_max=None, **task_overrides) -> HighLevelEnv:
+  """The HL env of ``task`` over an LL described by its checkpoint metadata. The inner env's own
+  time limit is disabled: the HL env counts HL steps."""
+  hl_horizon = hl_horizon or task_overrides.pop("hl_horizon", None) or TASKS[task]().hl_horizon
+  inner = make(low_meta["agent"], task, backend=backend, hl_horizon=10**6,
+               **(low_meta.get("env_overrides") or {}) | task_overrides)
+  if inner.obs_lo_size + 2 != low_meta["obs_size"]:
     raise ckpt.CheckpointError(
-        f"the LL in {low} observes {meta['obs_size']} numbers but {meta['agent']} on {task} gives "
+        f"the LL observes {low_meta['obs_size']} numbers but {low_meta['agent']} on {task} gives "
         f"{inner.obs_lo_size} + 2: was it trained with other options (e.g. rangefinders for steps)?")
-  horizon = hl_horizon or configs_task_horizon(task, task_overrides)
-  return HighLevelEnv(inner, fn, params["policy"], k=k or meta["k"], hl_horizon=horizon,
-                      record=record, delta_max=delta_max or meta["delta_max"])
+  fn = low_policy_fn(low_meta["hidden_sizes"], low_meta["obs_size"], low_meta["action_size"])
+  return HighLevelEnv(inner, fn, low_params, k=k or low_meta["k"], hl_horizon=hl_horizon, record=record,
+                      delta_max=delta_max or low_meta["delta_max"])
 
 
-def configs_task_horizon(task: str, overrides: dict) -> int:
-  from hdt.envs.tasks import TASKS
-  return int(overrides.get("hl_horizon") or TASKS[task]().hl_horizon)
+def high_env(task: str, low: str | Path, low_seed: int = 0, backend="auto", **kw) -> HighLevelEnv:
+  """The HL env of ``task`` over the frozen LL saved in ``low`` (its seed ``low_seed``)."""
+  params, meta, _ = load_low(low, low_seed)
+  return build_high_env(meta, params["policy"], task, backend, **kw)
 
 
 def train_high(task: str, low: str | Path, config: SACConfig | None = None, seeds=1, out=None,
