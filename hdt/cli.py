@@ -1,41 +1,537 @@
-"""The ``hdt`` command. For now: ``hdt quickstart``; the full CLI is issue 7."""
+"""hdt: hierarchically decoupled morphological transfer, from the shell.
+
+  hdt train low --agent point                     goal-reaching LL of an agent
+  hdt train high --task waypoint --low RUN        HL SAC over a frozen LL
+  hdt train full --agent ant --task maze          flat SAC baseline
+  hdt align --agent arm3 --imitate RUN            LL aligned to another agent's LL (discriminator)
+  hdt finetune --high RUN --low RUN --task push1 --kl 1.0
+  hdt eval --high RUN --low RUN --task waypoint   (repeat --high/--low NAME=RUN for a matrix)
+  hdt sweep low --agent point --grid actor_lr=1e-4,3e-4
+  hdt reproduce table1 --preset cpu               paper tables/figures (experiments/)
+  hdt report RUN                                  Markdown + PNGs of a run directory
+  hdt quickstart                                  minutes-scale tour on a CPU
+
+Every sub-command takes --seeds N, --preset smoke|cpu|paper, --out DIR and --quiet.
+"""
 
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
+import importlib.util
+import inspect
+import itertools
+import json
 import sys
+import time
+import typing
 from pathlib import Path
 
+from hdt.agents.discriminator import DiscConfig
+from hdt.agents.sac import SACConfig
 
-def quickstart(out: Path, quiet: bool) -> None:
-  """Train a point-mass LL and an HL on Waypoint, then evaluate the composed policy."""
+PRESETS = ("smoke", "cpu", "paper")
+REPO = Path(__file__).resolve().parents[1]
+EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6")
+
+
+class CLIError(Exception):
+  """A usage problem: printed as one line, exit status 2."""
+
+
+class _Help(argparse.RawDescriptionHelpFormatter):
+  """Shows each option's default unless it is None (then the help text says where it comes from)."""
+
+  def _get_help_string(self, action):
+    h = action.help or ""
+    if "%(default)" not in h and action.default not in (None, argparse.SUPPRESS, False) and action.option_strings:
+      h += " (default: %(default)s)"
+    return h
+
+
+class _Parser(argparse.ArgumentParser):
+  def error(self, message):  # one line, not argparse's usage dump
+    raise CLIError(f"{self.prog}: {message} (see `{self.prog} --help`)")
+
+
+# ------------------------------------------------------------------------------------------------
+# Options generated from the config dataclasses, so --help always lists every field with its default.
+
+def _field_type(f: dataclasses.Field):
+  hint = typing.get_type_hints(SACConfig).get(f.name) if f.name in SACConfig.__dataclass_fields__ \
+      else typing.get_type_hints(DiscConfig).get(f.name)
+  text = str(hint)
+  if "tuple" in text:
+    return dict(type=int, nargs="+")
+  if "float" in text:
+    return dict(type=float)
+  if "int" in text:
+    return dict(type=int)
+  return dict(type=str)
+
+
+def _add_dataclass_options(p, cls, prefix: str, title: str, note: str):
+  g = p.add_argument_group(title, note)
+  for f in dataclasses.fields(cls):
+    default = f.default if f.default is not dataclasses.MISSING else None
+    g.add_argument(f"--{prefix}{f.name.replace('_', '-')}", dest=f"{prefix.replace('-', '_')}{f.name}",
+                   default=None, metavar=f.name.upper(), **_field_type(f),
+                   help=f"default: from the agent/level and --preset (class default {default})" if prefix == "" else f"(default: {default})")
+
+
+def _overrides(args, cls, prefix: str) -> dict:
+  out = {}
+  for f in dataclasses.fields(cls):
+    v = getattr(args, f"{prefix}{f.name}", None)
+    if v is not None:
+      out[f.name] = tuple(v) if isinstance(v, list) else v
+  return out
+
+
+def _parse_value(text: str):
+  try:
+    return ast.literal_eval(text)
+  except (ValueError, SyntaxError):
+    return text
+
+
+def _key_values(items, what: str) -> dict:
+  out = {}
+  for it in items or []:
+    if "=" not in it:
+      raise CLIError(f"{what} {it!r}: expected KEY=VALUE")
+    k, v = it.split("=", 1)
+    out[k.strip()] = _parse_value(v)
+  return out
+
+
+def _common(p, out_help="run directory (default: runs/<what>)"):
+  p.add_argument("--seeds", type=int, default=None, help="number of seeds, vmapped in one process "
+                 "(default: 1 for training, all seeds of a run for eval)")
+  p.add_argument("--preset", choices=PRESETS, default="cpu",
+                 help="budget: smoke (seconds), cpu (this machine, minutes), paper (paper budgets) "
+                      "(default: %(default)s)")
+  p.add_argument("--out", type=Path, default=None, help=out_help)
+  p.add_argument("--quiet", action="store_true", help="no progress output (CI)")
+
+
+def _training(p, env_opts=True):
+  _common(p)
+  p.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto",
+                 help="physics backend: auto = native MuJoCo on CPU, MJX on accelerators (default: %(default)s)")
+  p.add_argument("--resume", action="store_true",
+                 help="continue the run in --out from its last saved training state")
+  p.add_argument("--overwrite", action="store_true", help="replace an existing run in --out")
+  if env_opts:
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
+                   help="agent/task option, e.g. --set goal=end (maze), --set terrain=steps, "
+                        "--set delta_max=2.0 (repeatable)")
+  _add_dataclass_options(p, SACConfig, "", "SAC hyper-parameters",
+                         "Default: the paper's value for the agent/level (SPEC 4), then --preset's budget.")
+
+
+def build_parser() -> argparse.ArgumentParser:
+  p = _Parser(prog="hdt", description=__doc__, formatter_class=_Help)
+  sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND", parser_class=_Parser)
+  fmt = _Help
+
+  t = sub.add_parser("train", help="train a low level, a high level or the flat Full baseline", formatter_class=_Help)
+  tsub = t.add_subparsers(dest="level", required=True, metavar="LEVEL", parser_class=_Parser)
+  lo = tsub.add_parser("low", help="goal-reaching LL of --agent on its reach task", formatter_class=fmt)
+  lo.add_argument("--agent", required=True, help="point, ant, ant3, ant2, quadruped, arm_point, arm2, arm3, arm4")
+  _training(lo)
+  hi = tsub.add_parser("high", help="HL SAC on --task over the frozen LL in --low", formatter_class=fmt)
+  hi.add_argument("--task", required=True, help="waypoint, maze, steps, push1, push2, insert")
+  hi.add_argument("--low", required=True, type=Path, help="LL run directory (from `hdt train low`)")
+  hi.add_argument("--low-seed", type=int, default=0, help="seed of --low that drives every HL seed")
+  hi.add_argument("--k", type=int, default=None, help="LL steps per HL action (default: the LL's)")
+  _training(hi)
+  fu = tsub.add_parser("full", help="flat SAC on --task with --agent's torques", formatter_class=fmt)
+  fu.add_argument("--agent", required=True)
+  fu.add_argument("--task", required=True)
+  _training(fu)
+
+  al = sub.add_parser("align", help="LL of --agent aligned to the LL in --imitate (Algorithm 1)",
+                      formatter_class=fmt)
+  al.add_argument("--agent", required=True)
+  al.add_argument("--imitate", required=True, type=Path, help="LL run directory of agent A")
+  al.add_argument("--n-offline", type=int, default=20_000, help="A transitions collected offline")
+  _training(al)
+  _add_dataclass_options(al, DiscConfig, "disc-", "discriminator", "Algorithm 1's discriminator (SPEC 4).")
+
+  ft = sub.add_parser("finetune", help="finetune the HL in --high on the LL in --low, KL-tied to it",
+                      formatter_class=fmt)
+  ft.add_argument("--high", required=True, type=Path, help="HL run directory of agent A")
+  ft.add_argument("--low", required=True, type=Path, help="LL run directory of agent B")
+  ft.add_argument("--task", required=True)
+  ft.add_argument("--kl", type=float, default=1.0, help="initial KL weight beta; 0 = plain finetuning")
+  ft.add_argument("--anneal-frac", type=float, default=0.5, help="beta reaches 0 after this fraction")
+  ft.add_argument("--mode", choices=("forward", "reverse"), default="forward", help="KL direction")
+  ft.add_argument("--mean-only", action="store_true", help="tie only the means")
+  ft.add_argument("--lr", type=float, default=None, help="all learning rates (paper: 0.01 / 0.001)")
+  ft.add_argument("--low-seed", type=int, default=0)
+  _training(ft)
+
+  ev = sub.add_parser("eval", help="evaluate HL+LL pairs (or a flat --policy); a matrix with NAME=RUN",
+                      formatter_class=fmt)
+  ev.add_argument("--high", action="append", default=[], help="HL run, or NAME=RUN (repeat for a matrix)")
+  ev.add_argument("--low", action="append", default=[], help="LL run, or NAME=RUN (repeat for a matrix)")
+  ev.add_argument("--policy", type=Path, default=None, help="a flat policy run (LL on reach, or Full)")
+  ev.add_argument("--task", default=None, help="task (default: the HL's)")
+  ev.add_argument("--episodes", type=int, default=100, help="deterministic episodes per seed")
+  ev.add_argument("--box", choices=("refuse", "scale", "keep"), default="refuse",
+                  help="what to do when the HL's and LL's goal boxes differ")
+  ev.add_argument("--set", action="append", metavar="KEY=VALUE", default=[], help="task option, e.g. goal=end")
+  ev.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
+  _common(ev, "where eval.json (and a heatmap) go (default: runs/eval)")
+
+  sw = sub.add_parser("sweep", help="seeds x a hyper-parameter grid (seeds vmapped, grid points in turn)",
+                      formatter_class=fmt)
+  sw.add_argument("level", choices=("low", "high", "full"))
+  sw.add_argument("--agent", default=None)
+  sw.add_argument("--task", default=None)
+  sw.add_argument("--low", type=Path, default=None, help="LL run (level high)")
+  sw.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2,...",
+                  help="SAC field and its values (repeatable; the grid is their product)")
+  sw.add_argument("--set", action="append", metavar="KEY=VALUE", default=[])
+  sw.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
+  _common(sw, "sweep directory, one run per grid point (default: runs/sweep-<level>)")
+
+  rp = sub.add_parser("reproduce", help="re-run a paper table/figure (experiments/NAME.py)", formatter_class=fmt)
+  rp.add_argument("name", choices=EXPERIMENTS)
+  rp.add_argument("--results-md", type=Path, default=REPO / "RESULTS.md",
+                  help="Markdown file whose section for NAME/preset is replaced (not for smoke)")
+  rp.add_argument("--no-results-md", action="store_true", help="do not touch the results Markdown")
+  _common(rp, "directory of the experiment's runs (default: runs/NAME-PRESET)")
+
+  rep = sub.add_parser("report", help="Markdown summary, learning curves and a trajectory of a run",
+                       formatter_class=fmt)
+  rep.add_argument("run", type=Path, nargs="+", help="run directories")
+  rep.add_argument("--no-trajectory", action="store_true", help="skip the trajectory plot")
+  _common(rep, "unused (reports go to RUN/report/)")
+
+  q = sub.add_parser("quickstart", help="PM LL + HL on Waypoint, HL transferred to an ant LL, in minutes",
+                     formatter_class=fmt)
+  _common(q, "root of the quickstart's runs (default: runs/quickstart)")
+  return p
+
+
+# ------------------------------------------------------------------------------------------------
+# Sub-commands.
+
+def _seeds(args, default=1) -> int:
+  n = default if args.seeds is None else args.seeds
+  if n <= 0:
+    raise CLIError(f"--seeds {n}: give a positive number of seeds")
+  return n
+
+
+def _out_dir(args, name: str) -> Path:
+  out = args.out or Path("runs") / name
+  if (out / "meta.json").exists() and not (getattr(args, "resume", False) or getattr(args, "overwrite", False)):
+    raise CLIError(f"{out} already holds a run: pass --resume to continue it, --overwrite to replace it, "
+                   f"or another --out")
+  if getattr(args, "resume", False) and not (out / "meta.json").exists() and not (out / "state").exists():
+    raise CLIError(f"--resume: {out} holds no run to continue; drop --resume or pass the run's --out")
+  return out
+
+
+def _resume_kw(fn, args, out: Path) -> dict:
+  if not getattr(args, "resume", False):
+    return {}
+  if "resume" not in inspect.signature(fn).parameters:
+    raise CLIError("--resume is not supported by this version of hdt")
+  return {"resume": True}
+
+
+def _sac_config(args, level: str, agent=None, task=None, k=None, **extra) -> SACConfig:
+  from hdt.transfer import configs
+  over = configs.preset_overrides(args.preset, level, agent) | extra | _overrides(args, SACConfig, "")
+  if level == "high":
+    return configs.high_config(task, k, **over)
+  if level == "full":
+    return configs.full_config(agent, task, **over)
+  return configs.low_config(agent, **over)
+
+
+def _check_agent_task(agent=None, task=None):
+  from hdt.envs.agents import AGENTS
+  from hdt.envs.tasks import TASKS
+  if agent is not None and agent not in AGENTS:
+    raise CLIError(f"unknown agent {agent!r}; choose one of {', '.join(AGENTS)}")
+  if task is not None and task not in TASKS:
+    raise CLIError(f"unknown task {task!r}; choose one of {', '.join(TASKS)}")
+
+
+def _finish(res, args):
+  import numpy as np
+  ev = {k: v for k, v in res.history.items() if k in ("eval/return", "eval/success_max", "eval/goal_dist")}
+  summary = ", ".join(f"{k[5:]} {np.mean(v[:, -1]):.3g} ± {np.std(v[:, -1]):.2g}" for k, v in ev.items())
+  print(f"{res.run_dir}: final evaluation {summary}")
+  return 0
+
+
+def cmd_train(args) -> int:
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import pipeline
+  overrides = _key_values(args.set, "--set")
+  seeds = _seeds(args)
+  if args.level == "low":
+    _check_agent_task(args.agent)
+    cfg = _sac_config(args, "low", args.agent)
+    out = _out_dir(args, f"low-{args.agent}")
+    res = pipeline.train_low(args.agent, cfg, seeds=seeds, out=out, backend=args.backend, quiet=args.quiet,
+                             **_resume_kw(pipeline.train_low, args, out), **overrides)
+  elif args.level == "high":
+    _check_agent_task(task=args.task)
+    k = args.k or ckpt.load_meta(args.low, args.low_seed)["k"]
+    cfg = _sac_config(args, "high", task=args.task, k=k)
+    out = _out_dir(args, f"high-{args.task}-{ckpt.load_meta(args.low)['agent']}")
+    res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
+                              low_seed=args.low_seed, k=args.k, quiet=args.quiet,
+                              **_resume_kw(pipeline.train_high, args, out), **overrides)
+  else:
+    _check_agent_task(args.agent, args.task)
+    cfg = _sac_config(args, "full", args.agent, args.task)
+    out = _out_dir(args, f"full-{args.agent}-{args.task}")
+    res = pipeline.train_full(args.agent, args.task, cfg, seeds=seeds, out=out, backend=args.backend,
+                              quiet=args.quiet, **_resume_kw(pipeline.train_full, args, out), **overrides)
+  return _finish(res, args)
+
+
+def cmd_align(args) -> int:
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer.align import align_low
+  _check_agent_task(args.agent)
+  ckpt.load_meta(args.imitate)
+  disc = DiscConfig(**_overrides(args, DiscConfig, "disc_"))
+  cfg = _sac_config(args, "low", args.agent)
+  out = _out_dir(args, f"align-{args.agent}-to-{ckpt.load_meta(args.imitate)['agent']}")
+  res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
+                  backend=args.backend, quiet=args.quiet, **_resume_kw(align_low, args, out),
+                  **_key_values(args.set, "--set"))
+  return _finish(res, args)
+
+
+def cmd_finetune(args) -> int:
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer.finetune import finetune_high
+  _check_agent_task(task=args.task)
+  hm, lm = ckpt.load_meta(args.high), ckpt.load_meta(args.low, args.low_seed)
+  cfg = _sac_config(args, "high", task=args.task, k=lm["k"], hidden_sizes=tuple(hm["hidden_sizes"]))
+  out = _out_dir(args, f"finetune-{args.task}-{hm['agent']}-to-{lm['agent']}-kl{args.kl:g}")
+  res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
+                      anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
+                      backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
+                      **_resume_kw(finetune_high, args, out), **_key_values(args.set, "--set"))
+  return _finish(res, args)
+
+
+def _named(items, what) -> dict[str, Path]:
+  out = {}
+  for it in items:
+    name, _, run = it.rpartition("=") if "=" in it else (Path(it).name, "", it)
+    out[name or Path(run).name] = Path(run)
+  return out
+
+
+def cmd_eval(args) -> int:
+  from hdt import plots
+  from hdt.report import fmt, markdown_table
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer.evaluate import compose, evaluate, load_policy, zero_shot_matrix
+
+  overrides = _key_values(args.set, "--set")
+  out = args.out or Path("runs/eval")
+  if args.episodes <= 0:
+    raise CLIError(f"--episodes {args.episodes}: give a positive number of episodes")
+  highs, lows = _named(args.high, "--high"), _named(args.low, "--low")
+  if args.policy is not None:
+    if highs or lows:
+      raise CLIError("--policy evaluates a flat policy: do not combine it with --high/--low")
+    pol = load_policy(args.policy)
+    task = args.task or pol.meta["task"]
+  elif len(highs) == 1 and len(lows) == 1:
+    pol = compose(next(iter(highs.values())), next(iter(lows.values())), box=args.box)
+    task = args.task or pol.meta["task"]
+  elif highs and lows:
+    task = args.task or ckpt.load_meta(next(iter(highs.values())))["task"]
+    m = zero_shot_matrix(highs, lows, task, episodes=args.episodes, backend=args.backend, **overrides)
+    png = plots.heatmap(m, out / f"matrix_{task}.png")
+    rows = [[r] + [fmt(*m["cells"][(r, c)][:2]) for c in m["cols"]] for r in m["rows"]]
+    table = markdown_table(["LL \\ HL"] + m["cols"], rows)
+    _write_json(out / f"matrix_{task}.json", dict(task=task, rows=m["rows"], cols=m["cols"],
+                cells={f"{r}|{c}": v for (r, c), v in m["cells"].items()}))
+    print(table + f"\n\nheatmap: {png}")
+    return 0
+  else:
+    raise CLIError("give --high RUN and --low RUN (or several NAME=RUN of each for a matrix), or --policy RUN")
+  seeds = None if args.seeds is None else list(range(_seeds(args)))
+  ev = evaluate(pol, task, episodes=args.episodes, seeds=seeds, backend=args.backend, **overrides)
+  rows = [[k.removesuffix("_mean"), fmt(ev[k], ev[k.replace("_mean", "_std")]),
+           ", ".join(f"{x:.3g}" for x in ev["per_seed"][k.removesuffix("_mean")])]
+          for k in ev if k.endswith("_mean")]
+  print(markdown_table(["metric", "mean ± std over seeds", "per seed"], rows))
+  _write_json(out / f"eval_{task}.json", {k: v for k, v in ev.items() if k != "per_seed"}
+              | {"per_seed": {k: v.tolist() for k, v in ev["per_seed"].items()}, "task": task})
+  print(f"written: {out / f'eval_{task}.json'}")
+  return 0
+
+
+def _write_json(path: Path, obj) -> None:
+  from hdt.transfer.checkpoint import write_json_atomic
+  path.parent.mkdir(parents=True, exist_ok=True)
+  write_json_atomic(path, obj)
+
+
+def cmd_sweep(args) -> int:
+  import numpy as np
+  from hdt.report import fmt, markdown_table
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import pipeline
+  fields = {f.name: f for f in dataclasses.fields(SACConfig)}
+  grid = {}
+  for g in args.grid:
+    if "=" not in g:
+      raise CLIError(f"--grid {g!r}: expected FIELD=V1,V2,...")
+    name, values = g.split("=", 1)
+    if name not in fields:
+      raise CLIError(f"--grid {name}: not a SAC field; fields: {', '.join(fields)}")
+    grid[name] = [_parse_value(v) for v in values.split(",")]
+  if not grid:
+    raise CLIError("give at least one --grid FIELD=V1,V2")
+  if args.level in ("low", "full") and not args.agent:
+    raise CLIError(f"sweep {args.level} needs --agent")
+  if args.level in ("high", "full") and not args.task:
+    raise CLIError(f"sweep {args.level} needs --task")
+  if args.level == "high" and not args.low:
+    raise CLIError("sweep high needs --low RUN")
+  _check_agent_task(args.agent, args.task)
+  overrides = _key_values(args.set, "--set")
+  root = args.out or Path(f"runs/sweep-{args.level}")
+  rows, seeds = [], _seeds(args)
+  k = ckpt.load_meta(args.low)["k"] if args.level == "high" else None
+  for values in itertools.product(*grid.values()):
+    point = dict(zip(grid, values))
+    name = ",".join(f"{k_}={v}" for k_, v in point.items())
+    cfg = _sac_config(args, args.level, args.agent, args.task, k=k, **point)
+    out = root / name.replace("/", "_")
+    common = dict(seeds=seeds, out=out, backend=args.backend, quiet=args.quiet)
+    if args.level == "low":
+      res = pipeline.train_low(args.agent, cfg, **common, **overrides)
+    elif args.level == "high":
+      res = pipeline.train_high(args.task, args.low, cfg, **common, **overrides)
+    else:
+      res = pipeline.train_full(args.agent, args.task, cfg, **common, **overrides)
+    metric = next((m for m in ("eval/success_max", "eval/return") if m in res.history), None)
+    final = res.history[metric][:, -1]
+    rows.append([name, metric[5:], fmt(np.mean(final), np.std(final)), str(out)])
+  table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
+  root.mkdir(parents=True, exist_ok=True)
+  (root / "sweep.md").write_text(table + "\n")
+  print(table)
+  return 0
+
+
+def load_experiment(name: str):
+  path = REPO / "experiments" / f"{name}.py"
+  if not path.exists():
+    raise CLIError(f"experiment {name!r}: {path} not found (hdt reproduce needs a source checkout, "
+                   f"installed with `pip install -e .`)")
+  if str(REPO) not in sys.path:  # experiments import their shared helpers
+    sys.path.insert(0, str(REPO))
+  spec = importlib.util.spec_from_file_location(f"experiments.{name}", path)
+  mod = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(mod)
+  return mod
+
+
+def update_results_md(path: Path, key: str, text: str) -> None:
+  """Replaces (or appends) the block between ``<!-- hdt:KEY -->`` markers."""
+  start, end = f"<!-- hdt:{key} -->", f"<!-- /hdt:{key} -->"
+  block = f"{start}\n{text.strip()}\n{end}"
+  old = path.read_text() if path.exists() else "# Results\n"
+  if start in old and end in old:
+    new = old[:old.index(start)] + block + old[old.index(end) + len(end):]
+  else:
+    new = old.rstrip() + "\n\n" + block + "\n"
+  tmp = path.with_name("." + path.name + ".tmp")
+  tmp.write_text(new)
+  tmp.replace(path)
+
+
+def cmd_reproduce(args) -> int:
+  mod = load_experiment(args.name)
+  if args.preset not in mod.PRESETS:
+    raise CLIError(f"{args.name} has no preset {args.preset!r}; presets: {', '.join(mod.PRESETS)}")
+  out = args.out or Path("runs") / f"{args.name}-{args.preset}"
+  t0 = time.time()
+  result = mod.run(args.preset, out, seeds=args.seeds, quiet=args.quiet)
+  text = mod.markdown(result)
+  print(text)
+  print(f"\n{args.name} ({args.preset}) took {(time.time() - t0) / 60:.1f} min; runs in {out}")
+  if args.preset != "smoke" and not args.no_results_md:
+    update_results_md(args.results_md, f"{args.name}:{args.preset}", text)
+    print(f"updated {args.results_md}")
+  return 0
+
+
+def cmd_report(args) -> int:
+  from hdt.report import run_report
+  for run in args.run:
+    path = run_report(run, trajectory=not args.no_trajectory)
+    print(path.read_text())
+    print(f"report: {path}")
+  return 0
+
+
+def cmd_quickstart(args) -> int:
+  """PM LL + HL on Waypoint, a small ant LL, and the PM HL transferred zero-shot to the ant."""
+  from hdt.report import fmt, markdown_table, run_report
   from hdt.transfer import configs
   from hdt.transfer.evaluate import compose, evaluate
   from hdt.transfer.pipeline import train_high, train_low
 
-  low = train_low("point", configs.low_config("point", total_env_steps=8000, num_envs=8,
-                                               updates_per_step=8, steps_per_chunk=125),
-                  seeds=2, out=out / "pm_low", quiet=quiet)
-  high = train_high("waypoint", low.run_dir,
-                    configs.high_config("waypoint", 32, total_env_steps=8000, num_envs=8,
-                                        updates_per_step=8, steps_per_chunk=125),
-                    seeds=2, out=out / "pm_high", quiet=quiet)
-  ev = evaluate(compose(high.run_dir, low.run_dir), "waypoint", episodes=20)
-  print(f"\nWaypoint return, PM HL on PM LL, 2 seeds x 20 episodes: "
-        f"{ev['return_mean']:.0f} ± {ev['return_std']:.0f} (paper, full budget: 1021 ± 43)")
-  print(f"run directories: {low.run_dir}  {high.run_dir}")
+  root = args.out or Path("runs/quickstart")
+  seeds, quiet = _seeds(args, 2), args.quiet
+  small = args.preset == "smoke"
+  pm = dict(total_env_steps=2000 if small else 8000, num_envs=8, updates_per_step=8, steps_per_chunk=25 if small else 125)
+  low = train_low("point", configs.low_config("point", **pm), seeds=seeds, out=root / "pm_low", quiet=quiet)
+  high = train_high("waypoint", low.run_dir, configs.high_config("waypoint", 32, **pm), seeds=seeds,
+                    out=root / "pm_high", quiet=quiet)
+  ant = dict(total_env_steps=2000 if small else 30_000, num_envs=16, updates_per_step=2,
+             steps_per_chunk=25 if small else 125, batch_size=256)
+  ant_low = train_low("ant", configs.low_config("ant", **ant), seeds=seeds, out=root / "ant_low", quiet=quiet)
+  episodes = 4 if small else 20
+  rows = []
+  for name, ll in (("point", low.run_dir), ("ant", ant_low.run_dir)):
+    ev = evaluate(compose(high.run_dir, ll), "waypoint", episodes=episodes)
+    rows.append([name, "point", fmt(ev["return_mean"], ev["return_std"]),
+                 "1021 ± 43" if name == "point" else "483 ± 39"])
+  print("\nWaypoint return, zero-shot (HL trained on the point mass), "
+        f"{seeds} seeds x {episodes} episodes, minutes-scale budgets:\n")
+  print(markdown_table(["LL agent", "HL from", "hdt", "paper (full budget)"], rows))
+  rep = run_report(high.run_dir)
+  print(f"\nplots and report: {rep.parent}\nrun directories: {low.run_dir} {high.run_dir} {ant_low.run_dir}")
+  return 0
+
+
+COMMANDS = {"train": cmd_train, "align": cmd_align, "finetune": cmd_finetune, "eval": cmd_eval,
+            "sweep": cmd_sweep, "reproduce": cmd_reproduce, "report": cmd_report, "quickstart": cmd_quickstart}
 
 
 def main(argv=None) -> int:
-  p = argparse.ArgumentParser(prog="hdt", description=__doc__)
-  sub = p.add_subparsers(dest="cmd", required=True)
-  q = sub.add_parser("quickstart", help="train a PM LL + HL on Waypoint and evaluate (minutes on a CPU)")
-  q.add_argument("--out", type=Path, default=Path("runs/quickstart"), help="run directory root (default: %(default)s)")
-  q.add_argument("--quiet", action="store_true", help="no progress output")
-  a = p.parse_args(argv)
-  if a.cmd == "quickstart":
-    quickstart(a.out, a.quiet)
-  return 0
+  from hdt.transfer.checkpoint import CheckpointError
+  try:
+    args = build_parser().parse_args(argv)
+    return COMMANDS[args.cmd](args)
+  except CLIError as e:
+    print(f"error: {e}", file=sys.stderr)
+    return 2
+  except (ValueError, CheckpointError, FileNotFoundError, FloatingPointError) as e:
+    print(f"hdt: error: {e}", file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":

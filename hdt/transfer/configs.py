@@ -55,3 +55,34 @@ def full_config(agent: str, task: str, **overrides) -> SACConfig:
 
 def replace(cfg: SACConfig, **kw) -> SACConfig:
   return _fit(dataclasses.asdict(cfg) | kw)
+
+
+# Budgets of the CLI's --preset: "smoke" (CI, seconds), "cpu" (this 2-core machine, minutes),
+# "paper" (the defaults above). Entries are SACConfig overrides per level; LL budgets per family.
+PRESETS = {
+    "smoke": dict(low=dict(total_env_steps=2000, num_envs=4, updates_per_step=4, steps_per_chunk=100,
+                           num_eval_episodes=4),
+                  high=dict(total_env_steps=400, num_envs=4, updates_per_step=4, steps_per_chunk=25,
+                            num_eval_episodes=4)),
+    "cpu": dict(low=dict(num_envs=8, updates_per_step=8, num_eval_episodes=16),
+                high=dict(total_env_steps=6000, num_envs=8, updates_per_step=8, steps_per_chunk=75,
+                          num_eval_episodes=8)),
+    "paper": dict(low={}, high={}),
+}
+CPU_LOW_STEPS = {"point": 20_000, "manip": 60_000, "legged": 100_000}
+
+
+def family_key(agent: str) -> str:
+  spec = AGENTS[agent]
+  return "point" if agent == "point" else "legged" if spec.legged else "manip"
+
+
+def preset_overrides(preset: str, level: str, agent: str | None = None) -> dict:
+  """SACConfig overrides of ``preset`` for ``level`` ("low", "high" or "full")."""
+  if preset not in PRESETS:
+    raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+  over = dict(PRESETS[preset]["high" if level == "high" else "low"])
+  if preset == "cpu" and level in ("low", "full"):
+    steps = CPU_LOW_STEPS[family_key(agent)]
+    over |= dict(total_env_steps=steps, steps_per_chunk=max(1, steps // over["num_envs"] // 10))
+  return over

@@ -85,6 +85,7 @@ def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str
     for i, s in enumerate(seeds):
       ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], res.params), dict(meta, seed=s))
     write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
+    write_tensorboard(run_dir / "tb", res.history, seeds)
   return RunResult(run_dir, res.params, res.history, meta)
 
 
@@ -106,6 +107,23 @@ def write_metrics_csv(path: Path, history: dict, seeds) -> None:
     w.writeheader()
     w.writerows(rows)
   tmp.replace(path)
+
+
+def write_tensorboard(log_dir: Path, history: dict, seeds) -> None:
+  """TensorBoard event files, one run per seed (``tensorboard --logdir RUN/tb``), x = env steps."""
+  from tensorboardX import SummaryWriter
+
+  for i, s in enumerate(seeds):
+    with SummaryWriter(str(log_dir / f"seed_{s}")) as w:
+      steps = {"train": history.get("env_steps"), "eval": history.get("eval/env_steps")}
+      for k, v in history.items():
+        x = steps["eval" if k.startswith("eval/") else "train"]
+        v = np.asarray(v)
+        if x is None or k.endswith("env_steps") or not np.issubdtype(v.dtype, np.number):
+          continue
+        for c in range(v.shape[1]):
+          if np.all(np.isfinite(v[i, c])):  # e.g. losses before learning starts
+            w.add_scalar(k if "/" in k else f"train/{k}", float(np.mean(v[i, c])), int(np.asarray(x)[i, c]))
 
 
 def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, backend="auto",

@@ -1,0 +1,122 @@
+"""Figures people would rather look at than read: learning curves with seed bands, transfer-matrix
+heatmaps and top-down trajectories over the task's scene. Matplotlib (Agg), PNG files, no display."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def _save(fig, path) -> Path:
+  path = Path(path)
+  path.parent.mkdir(parents=True, exist_ok=True)
+  tmp = path.with_name("." + path.name + ".tmp.png")
+  fig.savefig(tmp, dpi=120, bbox_inches="tight")
+  plt.close(fig)
+  tmp.replace(path)  # never a half-written PNG
+  return path
+
+
+def learning_curves(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path, hline: Mapping[str, float] | None = None,
+                    title: str = "", xlabel: str = "env steps of B", ylabel: str = "success") -> Path:
+  """One line per method: the mean over seeds with a ±1 std band. ``series[name] = (x, y)`` with x of
+  shape (T,) or (S, T) and y of shape (S, T); ``hline`` draws reference levels (e.g. zero-shot)."""
+  fig, ax = plt.subplots(figsize=(6, 4))
+  for name, (x, y) in series.items():
+    y = np.atleast_2d(np.asarray(y, float))
+    x = np.asarray(x, float)
+    x = x[0] if x.ndim == 2 else x
+    m, s = y.mean(0), y.std(0)
+    (line,) = ax.plot(x, m, label=f"{name} (n={y.shape[0]})")
+    ax.fill_between(x, m - s, m + s, color=line.get_color(), alpha=0.2)
+  for name, v in (hline or {}).items():
+    ax.axhline(v, ls="--", color="k", lw=1)
+    ax.annotate(name, (ax.get_xlim()[0], v), textcoords="offset points", xytext=(4, 3), fontsize=8)
+  ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
+  ax.grid(alpha=0.3)
+  ax.legend(fontsize=8)
+  return _save(fig, path)
+
+
+def heatmap(matrix: dict, path, title: str = "") -> Path:
+  """A zero-shot transfer matrix from :func:`hdt.transfer.evaluate.zero_shot_matrix`."""
+  rows, cols = matrix["rows"], matrix["cols"]
+  mean = np.array([[matrix["cells"][(r, c)][0] for c in cols] for r in rows])
+  std = np.array([[matrix["cells"][(r, c)][1] for c in cols] for r in rows])
+  metric = next(iter(matrix["cells"].values()))[2]
+  fig, ax = plt.subplots(figsize=(1.6 * len(cols) + 2, 1.2 * len(rows) + 1.5))
+  im = ax.imshow(mean, cmap="viridis")
+  for i in range(len(rows)):
+    for j in range(len(cols)):
+      ax.text(j, i, f"{mean[i, j]:.3g}\n±{std[i, j]:.2g}", ha="center", va="center",
+              color="w" if mean[i, j] < mean.mean() else "k", fontsize=9)
+  ax.set_xticks(range(len(cols)), cols)
+  ax.set_yticks(range(len(rows)), rows)
+  ax.set(xlabel="HL trained on", ylabel="LL of", title=title or f"{matrix['task']}: {metric}")
+  fig.colorbar(im, ax=ax, label=metric)
+  return _save(fig, path)
+
+
+def _static_boxes(model: mujoco.MjModel):
+  """(corners (4, 2), top height) of every box geom fixed to the world: walls, barriers, slot wall."""
+  out = []
+  for g in range(model.ngeom):
+    if model.geom_bodyid[g] != 0 or model.geom_type[g] != mujoco.mjtGeom.mjGEOM_BOX:
+      continue
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.geom_quat[g])
+    rot = rot.reshape(3, 3)
+    sx, sy, sz = model.geom_size[g]
+    local = np.array([[-sx, -sy, 0], [sx, -sy, 0], [sx, sy, 0], [-sx, sy, 0]])
+    corners = model.geom_pos[g] + local @ rot.T
+    out.append((corners[:, :2], model.geom_pos[g][2] + sz))
+  return out
+
+
+def trajectory(traj: dict, model: mujoco.MjModel, path, title: str = "") -> Path:
+  """Top-down view of one episode from :func:`hdt.transfer.evaluate.trajectory`: the scene's walls
+  and barriers (shade = height), the goal-space path, sub-goals, and the block's path if any."""
+  fig, ax = plt.subplots(figsize=(5, 5))
+  boxes = _static_boxes(model)
+  top = max([h for _, h in boxes], default=1.0)
+  for corners, h in boxes:
+    ax.add_patch(plt.Polygon(corners, color=plt.cm.Greys(0.3 + 0.6 * h / top), lw=0))
+  for s in range(model.nsite):
+    name = model.site(s).name
+    if "destination" in name or "target" in name:
+      ax.plot(*model.site_pos[s][:2], "r*", ms=12, label=name.split("/")[-1])
+  xy = np.asarray(traj["xy"])
+  ax.plot(xy[:, 0], xy[:, 1], "-", lw=1.2, label=f"{traj.get('agent', 'agent')} path")
+  if len(xy):
+    ax.plot(*xy[0], "go", label="start")
+  goals = np.asarray(traj.get("goals", np.zeros((0, 2))))
+  if len(goals):
+    ax.plot(goals[:, 0], goals[:, 1], "x", color="tab:orange", ms=5, label="sub-goals")
+  # The recorder logs obs_hi[2:4]: the block on BlockPush, the waypoint / goal cell on navigation.
+  block = np.asarray(traj.get("block", np.zeros((0, 2))))
+  shown = [xy, goals]
+  if len(block) and str(traj.get("task", "")).startswith("push"):
+    ax.plot(block[:, 0], block[:, 1], "-", color="tab:brown", lw=2, label="block")
+    shown.append(block)
+  elif len(block) and traj.get("task") in ("waypoint", "maze", "steps"):
+    targets = np.unique(np.round(block, 3), axis=0)
+    ax.plot(targets[:, 0], targets[:, 1], "r*", ms=10, label="waypoints" if traj["task"] == "waypoint" else "goal")
+    shown.append(targets)
+  pts = np.concatenate(shown)
+  if boxes and len(pts) and np.ptp(pts) < 2.0:  # manipulation: zoom to the arena, not the floor
+    pad = 0.05
+    ax.set_xlim(pts[:, 0].min() - pad - 0.1, pts[:, 0].max() + pad + 0.1)
+    ax.set_ylim(pts[:, 1].min() - pad - 0.1, pts[:, 1].max() + pad + 0.1)
+  else:
+    ax.autoscale()
+  ax.set_aspect("equal")
+  ax.set(title=title or f"{traj.get('agent')} on {traj.get('task')}", xlabel="x (m)", ylabel="y (m)")
+  ax.legend(fontsize=7, loc="best")
+  return _save(fig, path)

@@ -1,0 +1,106 @@
+"""Reports of run directories: a Markdown summary (final evaluation mean ± std over seeds), learning
+curves with seed bands and, for high levels, a top-down trajectory over the task's scene."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from hdt.transfer import checkpoint as ckpt
+
+# Evaluation metrics worth a curve, in the order they are shown; (csv column, label).
+CURVE_METRICS = (("eval/success_max", "success"), ("eval/return", "return"), ("eval/goal_dist", "final goal distance"))
+
+
+def fmt(mean: float, std: float) -> str:
+  return f"{mean:.3g} ± {std:.2g}"
+
+
+def markdown_table(header: list[str], rows: list[list]) -> str:
+  lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+  lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+  return "\n".join(lines)
+
+
+def read_eval_curves(run_dir: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+  """``{column: (env_steps[T], values[S, T])}`` of the evaluation rows of a run's metrics.csv."""
+  path = Path(run_dir) / "metrics.csv"
+  if not path.exists():
+    raise FileNotFoundError(f"{path} not found: is {run_dir} a run directory written by hdt?")
+  with open(path) as f:
+    rows = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
+  if not rows:
+    raise ValueError(f"{path} holds no evaluation rows")
+  seeds = sorted({r["seed"] for r in rows}, key=int)
+  out = {}
+  for col in rows[0]:
+    if not col.startswith("eval/") or col == "eval/env_steps":
+      continue
+    per = [[float(r[col]) for r in rows if r["seed"] == s] for s in seeds]
+    steps = np.array([float(r["env_steps"]) for r in rows if r["seed"] == seeds[0]])
+    t = min(len(p) for p in per)
+    out[col] = (steps[:t], np.array([p[:t] for p in per]))
+  return out
+
+
+def run_report(run_dir: str | Path, trajectory: bool = True, episodes: int = 10) -> Path:
+  """Writes ``RUN/report/report.md`` with PNGs next to it and returns the Markdown path."""
+  from hdt import plots
+
+  run_dir = Path(run_dir)
+  meta_path = run_dir / "meta.json"
+  if not meta_path.exists():
+    raise FileNotFoundError(f"{meta_path} not found: `hdt report` takes a run directory written by "
+                            f"`hdt train/align/finetune` (it holds config.json, meta.json, metrics.csv)")
+  meta = json.loads(meta_path.read_text())
+  out = run_dir / "report"
+  curves = read_eval_curves(run_dir)
+  what = f"{meta.get('level')} level, {meta.get('agent')} on {meta.get('task')}"
+  lines = [f"# Report: {run_dir.name}", "", f"{what}; seeds {meta.get('seeds')}; "
+           f"{int(meta.get('sac', {}).get('total_env_steps', 0))} env steps per seed.", ""]
+  rows = []
+  for col, label in CURVE_METRICS:
+    if col not in curves:
+      continue
+    steps, y = curves[col]
+    final = y[:, -1]
+    rows.append([label, fmt(final.mean(), final.std()), ", ".join(f"{v:.3g}" for v in final),
+                 f"{y[:, 0].mean():.3g}"])
+    png = plots.learning_curves({meta.get("level", "run"): (steps, y)}, out / f"curve_{label.replace(' ', '_')}.png",
+                                title=what, xlabel="env steps" + (" (HL decisions)" if meta.get("level") == "high" else ""),
+                                ylabel=label)
+    lines.append(f"![{label}]({png.name})")
+  lines[4:4] = [markdown_table(["metric", "final (mean ± std over seeds)", "per seed", "at start"], rows), ""]
+  if trajectory and meta.get("level") == "high" and meta.get("low"):
+    lines += ["", _trajectory_section(run_dir, meta, out)]
+  path = out / "report.md"
+  text = "\n".join(lines) + "\n"
+  out.mkdir(parents=True, exist_ok=True)
+  tmp = path.with_name(".report.md.tmp")
+  tmp.write_text(text)
+  tmp.replace(path)
+  return path
+
+
+def _trajectory_section(run_dir: Path, meta: dict, out: Path) -> str:
+  from hdt import plots
+  from hdt.envs import make
+  from hdt.transfer.evaluate import compose, trajectory
+
+  low = meta["low"]["path"]
+  try:
+    ckpt.load_meta(low)
+  except (FileNotFoundError, ckpt.CheckpointError) as e:
+    return f"(no trajectory: the low level {low} is not loadable: {e})"
+  policy = compose(run_dir, low)
+  overrides = meta.get("task_overrides") or {}
+  traj = trajectory(policy, meta["task"], **overrides)
+  lm = policy.low_meta
+  model = make(lm["agent"], meta["task"], **(lm.get("env_overrides") or {}) | overrides).mj_model
+  png = plots.trajectory(traj, model, out / "trajectory.png",
+                         title=f"{meta['task']}: HL seed 0 driving {lm['agent']}'s LL")
+  ret = float(np.sum(traj["rewards"]))
+  return f"One deterministic episode (return {ret:.3g}):\n\n![trajectory]({png.name})"
