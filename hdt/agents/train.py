@@ -34,6 +34,7 @@ import numpy as np
 from flax import struct
 
 from hdt.agents import networks as nets
+from hdt.agents import sharding as sharding_lib
 from hdt.agents import replay as replay_lib
 from hdt.agents.replay import Transition
 from hdt.agents.sac import (
@@ -333,15 +334,18 @@ class VmappedFns(NamedTuple):
 
 
 @functools.lru_cache(maxsize=16)
-def vmapped(trainer: Trainer) -> VmappedFns:
-  """``jit(vmap(...))`` of the trainer's functions over a leading seed axis, cached per trainer.
+def vmapped(trainer: Trainer, num_seeds: int = 1) -> VmappedFns:
+  """``jit(vmap(...))`` of the trainer's functions over a leading seed axis, cached per trainer;
+  with several devices the seeds are split across them (:mod:`hdt.agents.sharding`).
 
   ``run_chunk`` donates the TrainState (the replay is updated in place): do not reuse its input.
   """
+  mesh = sharding_lib.seed_mesh(num_seeds)
+  over = lambda fn, n=1: sharding_lib.over_seeds(jax.vmap(fn), mesh, n)
   return VmappedFns(
-      init=jax.jit(jax.vmap(trainer.init)),
-      run_chunk=jax.jit(jax.vmap(trainer.run_chunk), donate_argnums=0),
-      evaluate=jax.jit(jax.vmap(trainer.evaluate)),
+      init=jax.jit(over(trainer.init)),
+      run_chunk=jax.jit(over(trainer.run_chunk), donate_argnums=0),
+      evaluate=jax.jit(over(trainer.evaluate, 2)),
   )
 
 
@@ -394,12 +398,14 @@ def run(
       raise ValueError(f"pass plugins {sorted(plugins)} to make_train, not with trainer=")
     if dataclasses.replace(trainer.config, total_env_steps=config.total_env_steps) != config:
       raise ValueError("trainer.config differs from config in more than total_env_steps")
-  fns = vmapped(trainer)
-  keys = seed_keys(seeds)
+  fns = vmapped(trainer, len(seeds))
+  # Several devices (GPUs, hosts, or forced CPU host devices): each gets its share of the seeds.
+  sharding = sharding_lib.seed_sharding(len(seeds))
+  keys = sharding_lib.shard(seed_keys(seeds), sharding)
   if initial_state is None:
     ts = fns.init(keys)
   else:
-    ts = initial_state
+    ts = sharding_lib.shard(initial_state, sharding)
     if np.shape(ts.env_steps) != (len(seeds),):
       raise ValueError(
           f"initial_state has seed axis {np.shape(ts.env_steps)}, expected ({len(seeds)},)"
@@ -411,7 +417,7 @@ def run(
 
   def evaluate(index, step):
     k = jax.vmap(eval_key, in_axes=(0, None))(keys, index)
-    ev = jax.device_get(eval_fn(ts.agent.policy_params, k))
+    ev = sharding_lib.to_host(eval_fn(ts.agent.policy_params, k))
     ev = {f"eval/{name}": np.asarray(v) for name, v in ev.items()}
     ev["eval/env_steps"] = np.full(len(seeds), step)
     for name, v in ev.items():
@@ -423,7 +429,7 @@ def run(
   t0 = time.perf_counter()
   for c in range(start_chunk, config.num_chunks):
     ts, m = chunk_fn(ts)
-    m = {k: np.asarray(v) for k, v in jax.device_get(m).items()}
+    m = {k: np.asarray(v) for k, v in sharding_lib.to_host(m).items()}
     step = (c + 1) * chunk_steps
     m["walltime"] = np.full(len(seeds), time.perf_counter() - t0)
     for k, v in m.items():
