@@ -12,8 +12,9 @@ import pytest
 from hdt.agents import discriminator as D
 from hdt.agents.replay import Transition
 from hdt.transfer import configs
-from hdt.transfer.align import align_low, collect_offline
-from hdt.transfer.pipeline import train_low
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer.align import align_low, collect_offline, load_discriminator
+from hdt.transfer.pipeline import load_low, train_low
 
 
 def _taus(rng, n, speed):
@@ -119,6 +120,17 @@ def test_align_low_end_to_end_and_meta(tiny_low, tmp_path):
   w = res.history["disc/w"]
   assert w.shape == (1, 1) and 0.1 < w[0, 0] < 0.3  # chunk mean of the annealed weight
   assert np.all(np.isfinite(res.history["disc/loss"]))
+
+  # The discriminator is saved with the LL (inspect / resume the alignment) and reloads exactly.
+  logit, m = load_discriminator(tmp_path / "aligned")
+  assert m["aligned_to"]["tau_scale"] == 4.0
+  tau = collect_offline(tiny_low.run_dir, 64, jax.random.PRNGKey(3), num_envs=16)
+  disc = D.Discriminator(tuple(m["discriminator"]["hidden_sizes"]))
+  want = disc.apply(jax.tree.map(lambda x: x[0], res.params["discriminator"]), tau / 4.0)
+  np.testing.assert_allclose(np.asarray(logit(tau)), np.asarray(want), rtol=1e-5, atol=1e-6)
+  assert load_low(tmp_path / "aligned")[1]["level"] == "low"  # still an ordinary LL checkpoint
+  with pytest.raises(ckpt.CheckpointError, match="no discriminator"):
+    load_discriminator(tiny_low.run_dir)
 
 
 def test_align_low_rejects_other_goal_space(tiny_low):
