@@ -219,6 +219,13 @@ def make_main(name: str, presets: dict, run: Callable, markdown: Callable, doc: 
 
 
 # -- finetuning studies (fig5, fig6, table3) ------------------------------------------------------
+# PM A -> ant B studies (fig6, table3). The ant is expensive: at the cpu preset its LL gets 40k of the
+# paper's 2.5M env steps, so these numbers say little about the paper's.
+NAV_PM_TO_ANT_PRESETS = {
+    "smoke": dict(low={"point": 1000, "legged": 1000}, high=100, ft=100, seeds=1, episodes=2, evals=2),
+    "cpu": dict(low={"point": 20_000, "legged": 40_000}, high=4000, ft=1500, seeds=2, episodes=20, evals=5),
+    "paper": dict(low={}, high=None, ft=None, seeds=5, episodes=100, evals=20, train_episodes=20),
+}
 METHODS = {"finetune_kl": "finetune KL", "finetune": "finetune", "scratch": "HL scratch", "full": "Full"}
 
 

@@ -22,11 +22,7 @@ STUDY = C.FinetuneStudy("fig6", a="point", b="ant", task="waypoint",
 PAPER = {"zero_shot": "483 ± 39", "finetune_kl": "best curve", "finetune": "curve",
          "scratch": "476 ± 19 (Ant HL on Ant LL, Table 1)", "full": "fails (no hierarchy)"}
 
-PRESETS = {  # ant LL budgets are tiny here: the paper's is 2.5M env steps
-    "smoke": dict(low={"point": 1000, "legged": 1000}, high=100, ft=100, seeds=1, episodes=2, evals=2),
-    "cpu": dict(low={"point": 20_000, "legged": 40_000}, high=4000, ft=1500, seeds=2, episodes=20, evals=5),
-    "paper": dict(low={}, high=None, ft=None, seeds=5, episodes=100, evals=20, train_episodes=20),
-}
+PRESETS = C.NAV_PM_TO_ANT_PRESETS
 
 
 run, markdown, main = C.study_interface(STUDY, PRESETS, PAPER, __doc__)

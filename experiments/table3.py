@@ -24,11 +24,7 @@ STUDY = C.FinetuneStudy("table3", a="point", b="ant", task="steps",
 PAPER = {"zero_shot": ".32 ± .16", "finetune": ".53 ± .09", "finetune_kl": ".52 ± .13",
          "scratch": ".59 ± .05"}
 
-PRESETS = {  # the ant is expensive: the cpu preset is far from the paper's 2.5M LL steps
-    "smoke": dict(low={"point": 1000, "legged": 1000}, high=100, ft=100, seeds=1, episodes=2, evals=2),
-    "cpu": dict(low={"point": 20_000, "legged": 40_000}, high=4000, ft=1500, seeds=2, episodes=20, evals=5),
-    "paper": dict(low={}, high=None, ft=None, seeds=5, episodes=100, evals=20, train_episodes=20),
-}
+PRESETS = C.NAV_PM_TO_ANT_PRESETS
 
 
 run, markdown, main = C.study_interface(STUDY, PRESETS, PAPER, __doc__)
