@@ -32,13 +32,14 @@ def learning_curves(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path, h
   for name, (x, y) in series.items():
     y = np.atleast_2d(np.asarray(y, float))
     x = np.asarray(x, float)
-    x = x[0] if x.ndim == 2 else x
-    m, s = y.mean(0), y.std(0)
+    x = np.nanmean(x, axis=0) if x.ndim == 2 else x
+    if x.shape[0] != y.shape[1]:
+      raise ValueError(f"{name}: x has {x.shape[0]} points but y has {y.shape[1]} per seed")
+    m, s = np.nanmean(y, axis=0), np.nanstd(y, axis=0)
     (line,) = ax.plot(x, m, label=f"{name} (n={y.shape[0]})")
-    ax.fill_between(x, m - s, m + s, color=line.get_color(), alpha=0.2)
+    ax.fill_between(x, m - s, m + s, color=line.get_color(), alpha=0.2, lw=0)
   for name, v in (hline or {}).items():
-    ax.axhline(v, ls="--", color="k", lw=1)
-    ax.annotate(name, (ax.get_xlim()[0], v), textcoords="offset points", xytext=(4, 3), fontsize=8)
+    ax.axhline(v, ls="--", color="purple", lw=1, label=f"{name} ({v:.3g})")
   ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
   ax.grid(alpha=0.3)
   ax.legend(fontsize=8)

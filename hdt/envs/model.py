@@ -28,6 +28,9 @@ def build_model(agent: AgentSpec, task: Task) -> mujoco.MjModel:
   scene = mujoco.MjSpec.from_file(str(XML_DIR / "scenes" / task.scene(agent)))
   agent_spec = mujoco.MjSpec.from_file(str(agent.xml_path))
   scene.option.timestep = agent_spec.option.timestep  # the agent owns its integration step
+  if agent.gear_scale != 1.0:
+    for act in agent_spec.actuators:
+      act.gear = [g * agent.gear_scale for g in act.gear]
   for xml, prefix in task.objects:
     scene.attach(mujoco.MjSpec.from_file(str(XML_DIR / "scenes" / xml)), prefix=prefix,
                  frame=scene.worldbody.add_frame())

@@ -27,6 +27,7 @@ class AgentSpec:
   reach_eps: float = 0.5  # LL goal counted as reached within this distance (m)
   init_noise: float = 0.1  # uniform qpos / normal qvel noise at reset
   success_bonus: float = 0.0  # manip LL: c in c * 1{|g - tip| < eps}
+  gear_scale: float = 1.0  # multiplies every actuator gear: a variant of a morphology (alignment tests)
 
   @property
   def xml_path(self) -> Path:

@@ -42,13 +42,30 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
     raise ckpt.CheckpointError("LL observations must end with the 2 goal-space entries g - s")
   tau_a = collect_offline(imitate, n_offline, jax.random.PRNGKey(offline_seed),
                                    backend=backend, seed_index=imitate_seed)
+  tau_scale = float(meta_a.get("delta_max") or 1.0)
   al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
-                               tau_scale=float(meta_a.get("delta_max") or 1.0))
+                               tau_scale=tau_scale)
   meta = dict(meta, aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
-                                    n_offline=int(n_offline), offline_seed=offline_seed),
+                                    n_offline=int(n_offline), offline_seed=offline_seed,
+                                    tau_scale=tau_scale),
               discriminator=dataclasses.asdict(disc))
   return _run(env, config, seeds, out, meta, quiet, f"align {agent}<-{meta_a['agent']}",
-              reward_fn=al.reward_fn, aux_init=al.aux_init, aux_update=al.aux_update)
+              reward_fn=al.reward_fn, aux_init=al.aux_init, aux_update=al.aux_update,
+              # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
+              save_extra=lambda ts: {"discriminator": ts.aux["params"]})
+
+
+def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):
+  """(logit_fn(tau) -> logit of "tau came from B", meta) of an aligned LL's saved discriminator;
+  ``tau`` in raw goal-space units (the saved net saw tau / A's delta_max)."""
+  params, meta = ckpt.load(aligned_run, seed_index)
+  if "discriminator" not in params or "discriminator" not in meta:
+    raise ckpt.CheckpointError(f"{aligned_run} holds no discriminator: it is not an aligned LL "
+                               f"(train one with train_low(agent, imitate=A_run))")
+  cfg = meta["discriminator"]
+  net = disc_lib.Discriminator(tuple(cfg["hidden_sizes"]))
+  scale = float(meta["aligned_to"].get("tau_scale") or 1.0)
+  return (lambda tau: net.apply(params["discriminator"], np.asarray(tau, np.float32) / scale)), meta
 
 
 def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: int = 64,

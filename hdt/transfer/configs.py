@@ -86,3 +86,19 @@ def preset_overrides(preset: str, level: str, agent: str | None = None) -> dict:
     steps = CPU_LOW_STEPS[family_key(agent)]
     over |= dict(total_env_steps=steps, steps_per_chunk=max(1, steps // over["num_envs"] // 10))
   return over
+
+
+def disc_config(agent_a: str, **overrides):
+  """The paper's discriminator hyper-parameters by A (paper table "discriminator training"): nav PM
+  lr 2e-4 weight 0.3; manipulation PM and 2Link lr 3e-4, 3Link (and 4Link) 5e-4, weight 0.4."""
+  from hdt.agents.discriminator import DiscConfig  # configs stays importable without flax
+  spec = AGENTS[agent_a]
+  base = {} if spec.family == "nav" else dict(lr=3e-4 if agent_a in ("arm_point", "arm2") else 5e-4,
+                                              w_init=0.4)
+  return DiscConfig(**(base | overrides))
+
+
+def finetune_params(task: str) -> dict:
+  """KL weight beta and learning rate of HL finetuning (SPEC 4): Maze beta 0.01 lr 1e-3; Waypoint and
+  manipulation beta 1, lr 1e-2."""
+  return dict(kl=0.01, lr=1e-3) if task in ("maze", "steps") else dict(kl=1.0, lr=1e-2)

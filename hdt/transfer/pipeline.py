@@ -17,6 +17,7 @@ from hdt.agents import networks as nets
 from hdt.agents import train as sac_train
 from hdt.agents.sac import SACConfig
 from hdt.envs import make
+from hdt.envs.spec import AgentSpec
 from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
@@ -67,7 +68,9 @@ def print_progress(total: int, quiet: bool = False, label: str = "") -> Callable
 
 
 def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str,
-         **plugins) -> RunResult:
+         save_extra: Callable[[Any], dict] | None = None, **plugins) -> RunResult:
+  """save_extra(final TrainState) -> {name: pytree with a seed axis} saved next to "policy" and "q"
+  in every seed's checkpoint (e.g. the discriminator of an aligned LL)."""
   seeds = list(range(seeds)) if isinstance(seeds, int) else [int(s) for s in seeds]
   progress = print_progress(config.total_env_steps, quiet, label)
   res = sac_train.run(env, config, seeds, progress_fn=progress, **plugins)
@@ -76,6 +79,7 @@ def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str
         and k.startswith(("critic", "actor", "alpha", "loss")):
       raise FloatingPointError(f"training diverged: metric {k!r} is not finite at the end of the run "
                                f"(seeds {seeds}); lower the learning rate or reward scale")
+  params = dict(res.params, **(save_extra(res.state) if save_extra else {}))
   run_dir = None
   if out is not None:
     run_dir = Path(out)
@@ -83,10 +87,10 @@ def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str
     ckpt.write_json_atomic(run_dir / "config.json", dataclasses.asdict(config))
     ckpt.write_json_atomic(run_dir / "meta.json", dict(meta, seeds=seeds))
     for i, s in enumerate(seeds):
-      ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], res.params), dict(meta, seed=s))
+      ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], params), dict(meta, seed=s))
     write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
     write_tensorboard(run_dir / "tb", res.history, seeds)
-  return RunResult(run_dir, res.params, res.history, meta)
+  return RunResult(run_dir, params, res.history, meta)
 
 
 def write_metrics_csv(path: Path, history: dict, seeds) -> None:
@@ -156,8 +160,11 @@ def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None
   """The HL env of ``task`` over an LL described by its checkpoint metadata. The inner env's own
   time limit is disabled: the HL env counts HL steps."""
   hl_horizon = hl_horizon or task_overrides.pop("hl_horizon", None) or TASKS[task]().hl_horizon
-  inner = make(low_meta["agent"], task, backend=backend, hl_horizon=10**6,
-               **(low_meta.get("env_overrides") or {}) | task_overrides)
+  # Only the LL's morphology options carry over; its reach-task options (terrain=...) do not
+  # belong to the HL task.
+  agent_fields = {f.name for f in dataclasses.fields(AgentSpec)}
+  morph = {k: v for k, v in (low_meta.get("env_overrides") or {}).items() if k in agent_fields}
+  inner = make(low_meta["agent"], task, backend=backend, hl_horizon=10**6, **morph | task_overrides)
   if inner.obs_lo_size + 2 != low_meta["obs_size"]:
     raise ckpt.CheckpointError(
         f"the LL observes {low_meta['obs_size']} numbers but {low_meta['agent']} on {task} gives "

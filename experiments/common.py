@@ -1,0 +1,328 @@
+"""Shared code of the experiment modules (table1, table2, table3, fig5, fig6).
+
+Every experiment module has the same interface, used by ``hdt reproduce NAME --preset P``::
+
+    PRESETS: dict[str, dict]            # "smoke", "cpu", "paper"
+    run(preset="cpu", out=Path("runs/NAME"), seeds=None, quiet=False) -> dict
+    markdown(result) -> str
+    main(argv=None) -> int
+
+Budgets in a preset: ``low`` = LL env steps per agent kind ("point", "manip", "legged"; None = the
+paper's budget from :mod:`hdt.transfer.configs`), ``high`` / ``ft`` = HL steps (HL decisions; None =
+the paper's LL-equivalent budget / k). Every run uses 8 parallel envs and 8 gradient updates per
+training step: the paper's update-to-data ratio of 1, with 8x fewer sequential steps.
+
+Run directories are reused when their config, seeds and key metadata match (so a killed long run
+can be restarted and only redoes what is missing); delete a run directory to retrain it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+# Compiled XLA programs are cached across runs (as in tests/conftest.py): re-runs compile nothing.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/hdt-jax"))
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
+
+from hdt.envs.agents import AGENTS
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import configs
+from hdt.transfer.evaluate import compose, evaluate, load_policy
+from hdt.transfer.finetune import finetune_high
+from hdt.transfer.pipeline import RunResult, train_full, train_high, train_low
+
+RESULTS = Path(__file__).resolve().parent / "results"
+PARALLEL = dict(num_envs=8, updates_per_step=8)
+
+
+# -- budgets --------------------------------------------------------------------------------------
+def kind(agent: str) -> str:
+  """Budget key of an agent: "point" (nav PM), "legged" or "manip"."""
+  return "point" if agent == "point" else "legged" if AGENTS[agent].legged else "manip"
+
+
+def _chunked(steps: int, evals: int) -> dict:
+  """A chunk per evaluation: ``evals`` evaluations over the run (plus the one at the start)."""
+  return dict(total_env_steps=steps, steps_per_chunk=max(1, steps // PARALLEL["num_envs"] // evals))
+
+
+def low_cfg(agent: str, pr: dict):
+  steps = pr["low"].get(kind(agent)) or configs.low_config(agent).total_env_steps
+  return configs.low_config(agent, **PARALLEL, **_chunked(steps, 10), num_eval_episodes=16)
+
+
+def high_cfg(task: str, k: int, steps: int | None, pr: dict, **kw):
+  steps = steps or configs.high_config(task, k).total_env_steps
+  return configs.high_config(task, k, **PARALLEL, **_chunked(steps, pr.get("evals", 5)),
+                             num_eval_episodes=pr.get("train_episodes", 8), **kw)
+
+
+def full_cfg(agent: str, task: str, env_steps: int, pr: dict):
+  return configs.full_config(agent, task, **PARALLEL, **_chunked(env_steps, pr.get("evals", 5)),
+                             num_eval_episodes=pr.get("train_episodes", 8))
+
+
+# -- runs, reused when they match -----------------------------------------------------------------
+def _json(x):
+  return json.loads(json.dumps(x, default=ckpt._jsonable))
+
+
+def read_history(metrics_csv: Path, seeds: list[int]) -> dict[str, np.ndarray]:
+  """The ``eval/...`` part of a run's history, (seeds, evaluations) arrays, from its metrics.csv."""
+  with open(metrics_csv, newline="") as f:
+    rows = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
+  keys = [k for k in rows[0] if k.startswith("eval/")] if rows else []
+  per = [[r for r in rows if int(float(r["seed"])) == s] for s in seeds]
+  return {k: np.array([[float(r[k]) if r[k] != "" else np.nan for r in p] for p in per]) for k in keys}
+
+
+def reuse_or_train(run_dir: Path, config, seeds: int, train: Callable[[], RunResult],
+                   expect: dict | None = None) -> RunResult:
+  """``train()`` unless ``run_dir`` already holds a finished run with this config, these seeds and
+  the ``expect``-ed metadata; then that run (params not loaded, eval history from metrics.csv)."""
+  run_dir = Path(run_dir)
+  try:
+    meta = json.loads((run_dir / "meta.json").read_text())
+    same = (json.loads((run_dir / "config.json").read_text()) == _json(dataclasses.asdict(config))
+            and meta.get("seeds") == list(range(seeds))
+            and ckpt.list_seeds(run_dir) == list(range(seeds))
+            and all(_json(meta.get(k)) == _json(v) for k, v in (expect or {}).items()))
+  except (OSError, json.JSONDecodeError):
+    same = False
+  if same:
+    print(f"reusing {run_dir}", file=sys.stderr, flush=True)
+    return RunResult(run_dir, None, read_history(run_dir / "metrics.csv", meta["seeds"]), meta)
+  return train()
+
+
+def low(agent: str, pr: dict, out: Path, seeds: int, quiet: bool, name: str | None = None,
+        imitate: RunResult | None = None, **env_overrides) -> RunResult:
+  """B's or A's LL on reach; ``imitate=A's LL run`` aligns it to A with A's discriminator config."""
+  cfg = low_cfg(agent, pr)
+  name = name or f"{agent}_low" + (f"_aligned_{imitate.meta['agent']}" if imitate else "")
+  kw, expect = dict(env_overrides), {"env_overrides": env_overrides}
+  if imitate is not None:
+    kw |= dict(imitate=imitate.run_dir, disc=configs.disc_config(imitate.meta["agent"]))
+    expect |= {"discriminator": dataclasses.asdict(kw["disc"])}
+  return reuse_or_train(out / name, cfg, seeds, expect=expect, train=lambda: train_low(
+      agent, cfg, seeds=seeds, out=out / name, quiet=quiet, **kw))
+
+
+def high(task: str, low_run: RunResult, pr: dict, out: Path, seeds: int, quiet: bool,
+         steps: int | None = None, name: str | None = None, **task_kw) -> RunResult:
+  cfg = high_cfg(task, low_run.meta["k"], steps or pr["high"], pr)
+  name = name or f"{low_run.meta['agent']}_high_{task}"
+  return reuse_or_train(out / name, cfg, seeds, expect={"task_overrides": task_kw}, train=lambda: train_high(
+      task, low_run.run_dir, cfg, seeds=seeds, out=out / name, quiet=quiet, **task_kw))
+
+
+def score(ev: dict) -> dict:
+  """The table entry of an evaluation: success where the task has it, else return."""
+  metric = "success" if "success_mean" in ev else "return"
+  return dict(metric=metric, mean=ev[f"{metric}_mean"], std=ev[f"{metric}_std"],
+              per_seed=np.asarray(ev["per_seed"][metric]).tolist(), episodes=ev["episodes"])
+
+
+def eval_hl(high_run: RunResult, low_run: RunResult, task: str, episodes: int, **eval_kw) -> dict:
+  """HL of ``high_run`` (its seeds) over the LL of ``low_run`` (paired seed by seed)."""
+  return score(evaluate(compose(high_run.run_dir, low_run.run_dir), task, episodes=episodes, **eval_kw))
+
+
+# -- curves ---------------------------------------------------------------------------------------
+def curve(res: RunResult, x_scale: int = 1) -> dict[str, np.ndarray]:
+  """(seeds, evaluations) arrays ``env_steps`` (x ``x_scale``: k for HL runs), ``success`` (NaN when
+  the task has none) and ``return`` from a run's evaluation history."""
+  h = res.history
+  ret = np.asarray(h["eval/return"], float)
+  succ = np.asarray(h.get("eval/success_max", np.full_like(ret, np.nan)), float)
+  return {"env_steps": np.asarray(h["eval/env_steps"], float) * x_scale, "success": succ, "return": ret}
+
+
+def write_curve_csvs(directory: Path, method: str, c: dict[str, np.ndarray]) -> list[str]:
+  """``<directory>/<method>_seed<i>.csv`` with columns env_steps, success, return."""
+  directory.mkdir(parents=True, exist_ok=True)
+  paths = []
+  for i in range(c["env_steps"].shape[0]):
+    p = directory / f"{method}_seed{i}.csv"
+    rows = zip(*(c[k][i] for k in ("env_steps", "success", "return")))
+    write_text_atomic(p, "env_steps,success,return\n" + "".join(f"{x:g},{s:g},{r:g}\n" for x, s, r in rows))
+    paths.append(str(p))
+  return paths
+
+
+# -- results --------------------------------------------------------------------------------------
+def write_text_atomic(path: Path, text: str) -> None:
+  path = Path(path)
+  path.parent.mkdir(parents=True, exist_ok=True)
+  fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+  with os.fdopen(fd, "w") as f:
+    f.write(text)
+  os.replace(tmp, path)
+
+
+def write_result(name: str, preset: str, result: dict) -> Path:
+  """``experiments/results/<name>_<preset>.json``, written atomically (keys in insertion order)."""
+  path = RESULTS / f"{name}_{preset}.json"
+  write_text_atomic(path, json.dumps(result, indent=1, default=ckpt._jsonable))
+  return path
+
+
+def command(name: str, preset: str) -> str:
+  return f"hdt reproduce {name} --preset {preset}  (or: PYTHONPATH=. python experiments/{name}.py --preset {preset})"
+
+
+def cell(r: dict | None) -> str:
+  """``mean ± std`` of a result entry, with 2 significant digits for success rates."""
+  if not r:
+    return "—"
+  f = "{:.2f}" if r.get("metric", "success") == "success" else "{:.0f}"
+  return f"{f.format(r['mean'])} ± {f.format(r['std'])}"
+
+
+def timed(minutes: dict, key: str, fn: Callable[[], Any]) -> Any:
+  t0 = time.time()
+  out = fn()
+  minutes[key] = minutes.get(key, 0.0) + (time.time() - t0) / 60
+  return out
+
+
+def make_main(name: str, presets: dict, run: Callable, markdown: Callable, doc: str | None = None,
+              extra: Callable[[argparse.ArgumentParser], None] | None = None) -> Callable:
+  """The ``main(argv=None) -> int`` of an experiment module: parse, run, print the Markdown table.
+  ``extra(parser)`` may add module-specific options; they are passed to ``run`` by name."""
+
+  def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog=f"experiments/{name}.py", description=doc,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--preset", choices=list(presets), default="cpu")
+    p.add_argument("--out", type=Path, default=Path("runs") / name)
+    p.add_argument("--seeds", type=int, default=None, help="seeds (default: the preset's)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    if extra:
+      extra(p)
+    a = vars(p.parse_args(argv))
+    print(markdown(run(**a)))
+    return 0
+
+  return main
+
+
+# -- finetuning studies (fig5, fig6, table3) ------------------------------------------------------
+# PM A -> ant B studies (fig6, table3). The ant is expensive: at the cpu preset its LL gets 40k of the
+# paper's 2.5M env steps, so these numbers say little about the paper's.
+NAV_PM_TO_ANT_PRESETS = {
+    "smoke": dict(low={"point": 1000, "legged": 1000}, high=100, ft=100, seeds=1, episodes=2, evals=2),
+    "cpu": dict(low={"point": 20_000, "legged": 40_000}, high=4000, ft=1500, seeds=2, episodes=20, evals=5),
+    "paper": dict(low={}, high=None, ft=None, seeds=5, episodes=100, evals=20, train_episodes=20),
+}
+METHODS = {"finetune_kl": "finetune KL", "finetune": "finetune", "scratch": "HL scratch", "full": "Full"}
+
+
+@dataclasses.dataclass(frozen=True)
+class FinetuneStudy:
+  """A's HL transferred to B's LL on ``task``, then trained further on B by each of ``methods``:
+  ``finetune_kl`` (``finetune_high(kl=beta)``, beta and lr from :func:`configs.finetune_params`),
+  ``finetune`` (kl=0), ``scratch`` (``train_high`` on B's LL) and ``full`` (flat SAC on B)."""
+
+  name: str  # experiment name: results/<name>_<preset>.json, .png and the CSV directory
+  a: str  # A's agent
+  b: str  # B's agent
+  task: str
+  methods: tuple[str, ...] = tuple(METHODS)
+  b_low: tuple[tuple[str, Any], ...] = ()  # B's LL pretraining options (e.g. terrain="steps")
+  task_kw: tuple[tuple[str, Any], ...] = ()  # task options for training and evaluation
+  title: str = ""
+
+
+def finetune_study(st: FinetuneStudy, preset: str, pr: dict, out: Path, seeds: int,
+                   quiet: bool) -> dict:
+  """Trains A's LL and HL and B's LL, evaluates zero-shot, runs every method for the same number
+  of B's env samples (HL steps x k for hierarchical methods, env steps for Full), writes one CSV per
+  method and seed plus a PNG of mean ± std curves, and returns the result dict (final evaluations
+  with ``episodes`` deterministic episodes per seed)."""
+  task, tkw, minutes = st.task, dict(st.task_kw), {}
+  a_low = timed(minutes, "A low", lambda: low(st.a, pr, out, seeds, quiet))
+  a_high = timed(minutes, "A high", lambda: high(task, a_low, pr, out, seeds, quiet, **tkw))
+  b_low = timed(minutes, "B low", lambda: low(st.b, pr, out, seeds, quiet, **dict(st.b_low)))
+  k = b_low.meta["k"]
+  zero = eval_hl(a_high, b_low, task, pr["episodes"], **tkw)
+  hp = configs.finetune_params(task)
+  ft_cfg = configs.replace(high_cfg(task, k, pr["ft"], pr), actor_lr=hp["lr"], critic_lr=hp["lr"],
+                           alpha_lr=hp["lr"])
+
+  def finetuned(kl):
+    name = f"{st.b}_ft{'_kl' if kl else ''}_{task}"
+    return reuse_or_train(out / name, ft_cfg, seeds, expect={"kl": kl, "task_overrides": tkw},
+                          train=lambda: finetune_high(a_high.run_dir, b_low.run_dir, task, kl=kl,
+                                                      config=ft_cfg, seeds=seeds, out=out / name,
+                                                      quiet=quiet, **tkw))
+
+  def full():
+    cfg = full_cfg(st.b, task, ft_cfg.total_env_steps * k, pr)  # as many B samples as the HL methods
+    name = f"{st.b}_full_{task}"
+    return reuse_or_train(out / name, cfg, seeds, expect={"env_overrides": tkw}, train=lambda: train_full(
+        st.b, task, cfg, seeds=seeds, out=out / name, quiet=quiet, **tkw))
+
+  train = {"finetune_kl": lambda: finetuned(hp["kl"]), "finetune": lambda: finetuned(0.0),
+           "scratch": lambda: high(task, b_low, pr, out, seeds, quiet, steps=ft_cfg.total_env_steps,
+                                   name=f"{st.b}_scratch_{task}", **tkw),
+           "full": full}
+  csv_dir = RESULTS / f"{st.name}_{preset}"
+  methods, series = {}, {}
+  for m in st.methods:
+    res = timed(minutes, m, train[m])
+    if m == "full":
+      final = score(evaluate(load_policy(res.run_dir), task, episodes=pr["episodes"], **tkw))
+    else:
+      final = eval_hl(res, b_low, task, pr["episodes"], **tkw)
+    c = curve(res, 1 if m == "full" else k)
+    methods[m] = dict(final, csv=write_curve_csvs(csv_dir, m, c), run=str(res.run_dir))
+    series[METHODS[m]] = (c["env_steps"], c[zero["metric"]])
+  from hdt.plots import learning_curves  # matplotlib only when plotting
+  png = learning_curves(series, RESULTS / f"{st.name}_{preset}.png", hline={"zero-shot": zero["mean"]},
+                        title=st.title or f"{st.a} HL -> {st.b} {task} ({preset} preset)",
+                        xlabel=f"env steps of B ({st.b})", ylabel=zero["metric"])
+  return dict(experiment=st.name, preset=preset, command=command(st.name, preset), seeds=seeds,
+              a=st.a, b=st.b, task=task, task_kw=tkw, k=k, budget=pr, kl=hp["kl"], lr=hp["lr"],
+              hl_steps=ft_cfg.total_env_steps, b_env_steps=ft_cfg.total_env_steps * k,
+              zero_shot=zero, methods=methods, png=str(png), minutes=minutes)
+
+
+def finetune_markdown(result: dict, paper: dict[str, str]) -> str:
+  """Final evaluation per method next to the paper (``paper[method or "zero_shot"]``)."""
+  r = result
+  lines = [f"{r['a']} HL → {r['b']} LL on {r['task']}: {r['hl_steps']} HL steps = {r['b_env_steps']} env "
+           f"steps of B per method, {r['seeds']} seeds × {r['zero_shot']['episodes']} episodes, "
+           f"β={r['kl']:g}, finetune lr {r['lr']:g}. Curves: `{r['png']}`.", "",
+           f"| method | hdt {r['zero_shot']['metric']} (mean ± std over seeds) | paper |", "|---|---|---|",
+           f"| zero-shot | {cell(r['zero_shot'])} | {paper.get('zero_shot', '—')} |"]
+  lines += [f"| {METHODS[m]} | {cell(v)} | {paper.get(m, '—')} |" for m, v in r["methods"].items()]
+  lines += ["", f"Command: `{r['command']}`"]
+  return "\n".join(lines)
+
+
+def study_interface(st: FinetuneStudy, presets: dict, paper: dict, doc: str | None = None):
+  """``(run, markdown, main)`` of an experiment module that is one :class:`FinetuneStudy`."""
+
+  def run(preset: str = "cpu", out: Path = Path("runs") / st.name, seeds: int | None = None,
+          quiet: bool = False) -> dict:
+    pr = presets[preset]
+    result = finetune_study(st, preset, pr, Path(out), seeds or pr["seeds"], quiet)
+    write_result(st.name, preset, result)
+    return result
+
+  def markdown(result: dict) -> str:
+    return finetune_markdown(result, paper)
+
+  return run, markdown, make_main(st.name, presets, run, markdown, doc)

@@ -1,0 +1,47 @@
+"""The experiment-module interface (``hdt reproduce NAME``): fig5 end to end at its tiny test preset."""
+
+import csv
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load(name):
+  """As the CLI does: experiments/NAME.py by path."""
+  spec = importlib.util.spec_from_file_location(f"exp_{name}", ROOT / "experiments" / f"{name}.py")
+  mod = importlib.util.module_from_spec(spec)
+  spec.loader.exec_module(mod)
+  return mod
+
+
+@pytest.mark.parametrize("name", ["table1", "table2", "table3", "fig5", "fig6"])
+def test_interface(name):
+  mod = load(name)
+  assert {"smoke", "cpu", "paper"} <= set(mod.PRESETS)
+  assert callable(mod.run) and callable(mod.markdown) and callable(mod.main)
+
+
+@pytest.mark.slow  # 7 trainings (A's LL and HL, B's LL, four methods): compile-bound, minutes here
+def test_fig5_writes_curves_png_and_results(tmp_path, monkeypatch):
+  fig5 = load("fig5")
+  from experiments import common
+  monkeypatch.setattr(common, "RESULTS", tmp_path / "results")  # keep experiments/results clean
+  res = fig5.run("test", out=tmp_path / "runs", quiet=True)
+  saved = json.loads((tmp_path / "results" / "fig5_test.json").read_text())
+  assert saved["methods"].keys() == res["methods"].keys() == {"finetune_kl", "finetune", "scratch", "full"}
+  for m, r in saved["methods"].items():
+    (path,) = r["csv"]
+    assert Path(path).name == f"{m}_seed0.csv"
+    rows = list(csv.DictReader(open(path)))
+    assert list(rows[0]) == ["env_steps", "success", "return"] and len(rows) >= 2
+    xs = [float(r["env_steps"]) for r in rows]
+    assert xs[0] == 0 and xs[-1] == saved["b_env_steps"]  # B's env samples, HL steps x k or env steps
+    assert all(0 <= float(r["success"]) <= 1 for r in rows)
+  png = Path(saved["png"])
+  assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+  md = fig5.markdown(saved)
+  assert "| zero-shot |" in md and ".17" in md and "hdt reproduce fig5 --preset test" in md
