@@ -20,6 +20,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from hdt.agents import normalizer
+
 Params = Any
 LOG_STD_MIN = -20.0
 LOG_STD_MAX = 2.0
@@ -99,8 +101,14 @@ def make_sac_networks(
     hidden_sizes: Sequence[int] = (64, 64),
     critic_hidden_sizes: Sequence[int] | None = None,
     activation: Callable[[jax.Array], jax.Array] = nn.relu,
+    normalize_observations: bool = False,
 ) -> SACNetworks:
-  """Builds the policy and twin-Q networks (float32 parameters)."""
+  """Builds the policy and twin-Q networks (float32 parameters).
+
+  With ``normalize_observations`` the initial parameters carry a running observation normaliser
+  (``hdt.agents.normalizer``); the apply functions use it whenever the parameters hold one, so they
+  also apply parameters of either layout.
+  """
   critic_hidden_sizes = tuple(hidden_sizes if critic_hidden_sizes is None else critic_hidden_sizes)
   policy = GaussianPolicy(tuple(hidden_sizes), action_size, activation)
   q = TwinQ(critic_hidden_sizes, activation)
@@ -109,15 +117,27 @@ def make_sac_networks(
   policy_shapes = jax.eval_shape(policy.init, jax.random.PRNGKey(0), dummy_obs)
   q_shapes = jax.eval_shape(q.init, jax.random.PRNGKey(0), dummy_obs, dummy_act)
 
+  def with_norm(params):
+    return dict(params, **{normalizer.KEY: normalizer.init(observation_size)}) if normalize_observations \
+        else params
+
   def policy_init(key):
-    return lecun_uniform_init(policy_shapes, key)
+    return with_norm(lecun_uniform_init(policy_shapes, key))
 
   def q_init(key):
-    return lecun_uniform_init(q_shapes, key)
+    return with_norm(lecun_uniform_init(q_shapes, key))
+
+  def policy_apply(params, obs):
+    params, stats = normalizer.split(params)
+    return policy.apply(params, obs if stats is None else normalizer.normalize(stats, obs))
+
+  def q_apply(params, obs, action):
+    params, stats = normalizer.split(params)
+    return q.apply(params, obs if stats is None else normalizer.normalize(stats, obs), action)
 
   return SACNetworks(
-      policy_apply=policy.apply,
-      q_apply=q.apply,
+      policy_apply=policy_apply,
+      q_apply=q_apply,
       policy_init=policy_init,
       q_init=q_init,
       observation_size=observation_size,

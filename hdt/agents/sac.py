@@ -61,6 +61,9 @@ class SACConfig:
   init_alpha: float = 1.0
   steps_per_chunk: int = 1000  # training steps per compiled chunk
   num_eval_episodes: int = 10
+  # Running mean/std of the collected observations, stored with the policy and critic parameters
+  # (hdt.agents.normalizer) and applied to their inputs.
+  normalize_observations: bool = False
 
   def __post_init__(self):
     # Normalise sequences to tuples so the config stays hashable (it is a static jit argument).

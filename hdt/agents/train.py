@@ -34,6 +34,7 @@ import numpy as np
 from flax import struct
 
 from hdt.agents import networks as nets
+from hdt.agents import normalizer
 from hdt.agents import sharding as sharding_lib
 from hdt.agents import replay as replay_lib
 from hdt.agents.replay import Transition
@@ -79,6 +80,14 @@ def _no_aux_update(aux, transitions, env_steps, key):
   return aux, {}
 
 
+def _set_obs_norm(agent: SACState, stats) -> SACState:
+  return agent.replace(
+      policy_params=normalizer.with_stats(agent.policy_params, stats),
+      q_params=normalizer.with_stats(agent.q_params, stats),
+      target_q_params=normalizer.with_stats(agent.target_q_params, stats),
+  )
+
+
 def _uniform01_from_bits(bits: jax.Array) -> jax.Array:
   """float32 in [0, 1) from uint32 bits (23 random mantissa bits, as jax.random.uniform)."""
   mantissa = jnp.right_shift(bits, jnp.uint32(9)) | jnp.uint32(0x3F800000)
@@ -116,7 +125,8 @@ def make_train(
   obs_size, act_size = int(env.observation_size), int(env.action_size)
   if networks is None:
     networks = nets.make_sac_networks(
-        obs_size, act_size, config.hidden_sizes, config.critic_sizes
+        obs_size, act_size, config.hidden_sizes, config.critic_sizes,
+        normalize_observations=config.normalize_observations,
     )
   update = make_update(
       networks, config, act_size, actor_regularizer=actor_regularizer, reward_fn=reward_fn
@@ -179,6 +189,11 @@ def make_train(
 
     nxt = v_step(ts.env_state, action)
     f32 = lambda x: jnp.asarray(x, jnp.float32)
+    agent = ts.agent
+    if normalizer.has(agent.policy_params):
+      # The observation normaliser sees every collected observation before the updates use it; the
+      # policy, critic and target critic share one copy of the statistics.
+      agent = _set_obs_norm(agent, normalizer.update(agent.policy_params[normalizer.KEY], obs))
     transitions = Transition(
         obs=f32(obs), action=f32(action), reward=f32(nxt.reward), next_obs=f32(nxt.next_obs),
         discount=f32(nxt.discount),
@@ -198,7 +213,9 @@ def make_train(
     skip = lambda agent: (
         agent, jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), metrics_shape)
     )
-    agent, upd_metrics = jax.lax.cond(learn, upd, skip, ts.agent)
+    agent, upd_metrics = jax.lax.cond(learn, upd, skip, agent)
+    if normalizer.has(agent.policy_params):  # undo the soft update's averaging of the statistics
+      agent = _set_obs_norm(agent, agent.policy_params[normalizer.KEY])
 
     done = f32(nxt.done)
     ep_ret = ts.episode_return + f32(nxt.reward)

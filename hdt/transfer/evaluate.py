@@ -14,7 +14,7 @@ from hdt.agents.sac import SACConfig
 from hdt.agents.train import make_train
 from hdt.envs import make
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer.pipeline import build_high_env, low_policy_fn
+from hdt.transfer.pipeline import build_high_env, hl_obs_layout, low_policy_fn
 
 _GOAL_SPACE = {"nav": "navigation (torso xy)", "manip": "manipulation (end-effector xy)"}
 
@@ -87,7 +87,7 @@ def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, re
     return env
   task = task or policy.meta["task"]
   env = build_high_env(policy.low_meta, low_params, task, backend, record=record,
-                       delta_max=policy.delta_max, **task_overrides)
+                       delta_max=policy.delta_max, **(hl_obs_layout(policy.meta) | task_overrides))
   if env.observation_size != policy.meta["obs_size"]:
     raise ValueError(f"the HL observes {policy.meta['obs_size']} numbers but {task} gives "
                      f"{env.observation_size} (was the HL trained on another task?)")

@@ -11,7 +11,8 @@ The other baselines need no new code: "HL from scratch on B's LL" is
 Seeds: HL seed ``i`` starts from A's HL seed ``i % n_A``. The frozen KL reference is A's seed
 ``reference_seed`` (default 0) for every seed: the regulariser is a closure over one parameter set
 (``make_train`` has no per-seed plug-in state for it), so with several A seeds, seeds ``i > 0`` start
-from A's seed ``i`` but are pulled towards A's seed 0. Only the policy is transferred; the critics,
+from A's seed ``i`` but are pulled towards A's seed 0. Only the policy (with its observation normaliser, if
+it has one; the critics adopt its statistics) is transferred; the critics,
 temperature and replay buffer start fresh.
 """
 
@@ -24,11 +25,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from hdt.agents import train as sac_train
+from hdt.agents import normalizer
 from hdt.agents.kl import MODES, linear_anneal, make_kl_regularizer
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.pipeline import RunResult, _run, env_meta, high_env, train_high
+from hdt.transfer.pipeline import (RunResult, _hl_obs_meta, _run, env_meta, high_env, hl_obs_layout,
+                                   train_high)
 
 train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 
@@ -74,7 +77,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
 
-  env = high_env(task, low, low_seed, backend, **task_overrides)
+  env = high_env(task, low, low_seed, backend, **(hl_obs_layout(am) | task_overrides))
   fam = env.env.agent.family
   if am.get("family") != fam:
     raise ValueError(f"goal spaces do not match: the HL in {high} was trained for the {am.get('family')!r} "
@@ -86,8 +89,13 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
         f"actions (was A's HL trained on another task or with other task options?)")
 
   a_hidden = tuple(int(h) for h in am["hidden_sizes"])
+  a_norm = normalizer.has(a_policy)  # A's observation normaliser travels with its policy
   if config is None:
-    config = configs.high_config(task, env.k, hidden_sizes=a_hidden)
+    config = configs.high_config(task, env.k, hidden_sizes=a_hidden, normalize_observations=a_norm)
+  if config.normalize_observations != a_norm:
+    raise ValueError(f"config.normalize_observations={config.normalize_observations} but the HL in {high} "
+                     f"was trained {'with' if a_norm else 'without'} an observation normaliser; the "
+                     f"finetuned policy must have A's layout")
   if tuple(config.hidden_sizes) != a_hidden:
     raise ValueError(f"config.hidden_sizes={config.hidden_sizes} but the HL in {high} has hidden sizes "
                      f"{a_hidden}; the finetuned policy must have A's architecture")
@@ -127,7 +135,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
 
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
                   low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides,
-                  finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
+                  hl_obs=_hl_obs_meta(env), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
                                       reference_seed=reference_seed),
                   kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),

@@ -155,6 +155,18 @@ def load_low(low: str | Path, seed_index: int = 0):
   return params, meta, fn
 
 
+def hl_obs_layout(meta: dict) -> dict:
+  """The task options that give an HL checkpoint the observation it was trained on: the recorded
+  ``hl_obs`` (hdt.envs.tasks.Task.hl_relative / hl_absolute), or plain obs_hi for runs that predate it."""
+  layout = meta.get("hl_obs") or {"hl_relative": [], "hl_absolute": True}
+  return {"hl_relative": tuple(int(i) for i in layout["hl_relative"]), "hl_absolute": bool(layout["hl_absolute"])}
+
+
+def _hl_obs_meta(env: HighLevelEnv) -> dict:
+  task = env.env.task
+  return {"hl_relative": [int(i) for i in task.hl_relative], "hl_absolute": bool(task.hl_absolute)}
+
+
 def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None, hl_horizon=None,
                    record=False, delta_max=None, **task_overrides) -> HighLevelEnv:
   """The HL env of ``task`` over an LL described by its checkpoint metadata. The inner env's own
@@ -187,7 +199,8 @@ def train_high(task: str, low: str | Path, config: SACConfig | None = None, seed
   env = high_env(task, low, low_seed, backend, k=k, **task_overrides)
   config = config or configs.high_config(task, env.k)
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
-                  low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides)
+                  low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides,
+                  hl_obs=_hl_obs_meta(env))
   return _run(env, config, seeds, out, meta, quiet, f"high {task}")
 
 
