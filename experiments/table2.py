@@ -26,7 +26,7 @@ ROWS = {  # name: (A, B, task, paper zero-shot plain -> aligned)
 
 PRESETS = {  # LL env steps by agent kind, HL steps, rows
     "smoke": dict(low={"manip": 1000}, high=200, seeds=1, episodes=4, evals=2, rows=["pm_3link_push1"]),
-    "cpu": dict(low={"manip": 50_000}, high=5000, seeds=2, episodes=50,
+    "cpu": dict(low={"manip": 60_000}, high=6000, seeds=2, episodes=50,  # = table1's: its runs are reused
                 rows=["pm_3link_push1", "2link_3link_push1"]),
     "paper": dict(low={}, high=None, seeds=5, episodes=100, rows=list(ROWS)),
 }
