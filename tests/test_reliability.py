@@ -1,0 +1,168 @@
+"""Reliability (issue 9): exact resume, atomic versioned checkpoints, determinism, NaN guards and
+argument validation that fails before anything is written.
+
+Training runs use the toy point-goal env of toy_env.py through ``pipeline._run``, the function every
+``train_*`` / ``finetune_high`` / ``align_low`` call ends in (MuJoCo envs compile for over a minute on
+a 2-core CPU); the wiring of the public ``resume=`` keyword is checked by the validation cases.
+"""
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hdt.agents import train as sac_train
+from hdt.agents.sac import SACConfig
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import pipeline
+from toy_env import PointGoal
+
+ENV = PointGoal()
+# 8 chunks of 25 training steps x 4 envs; learning starts in the first chunk.
+CFG = SACConfig(hidden_sizes=(16, 16), batch_size=16, buffer_size=500, num_envs=4, steps_per_chunk=25,
+                total_env_steps=800, learning_starts=40, num_eval_episodes=4)
+META = dict(level="low", agent="toy", task="reach")
+HALF = CFG.total_env_steps // 2
+
+
+class Interrupted(Exception):
+  pass
+
+
+def train(out, config=CFG, seeds=(0, 3), env=ENV, **kw):
+  return pipeline._run(env, config, list(seeds), out, META, True, "toy", **kw)
+
+
+def without_walltime(history):
+  return {k: v for k, v in history.items() if k != "walltime"}  # the only non-deterministic record
+
+
+def assert_trees_equal(a, b):
+  la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+  assert jax.tree.structure(a) == jax.tree.structure(b) and len(la) == len(lb)
+  for x, y in zip(la, lb):
+    assert np.asarray(x).dtype == np.asarray(y).dtype
+    assert np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
+
+
+def saved_state(run_dir, config=CFG, seeds=(0, 3), env=ENV):
+  trainer = sac_train.make_train(env, config)
+  template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(list(seeds)))
+  return ckpt.load_state(run_dir, template)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+  return train(tmp_path_factory.mktemp("runs") / "full", save_every=HALF)
+
+
+@pytest.fixture(scope="module")
+def resumed(tmp_path_factory):
+  """The same run killed (an exception) right after its state was saved at HALF, then resumed."""
+  out = tmp_path_factory.mktemp("runs") / "resumed"
+
+  def crash_at_half(total, quiet, label):
+    def progress(step, metrics):
+      if step == HALF:
+        raise Interrupted(step)
+    return progress
+
+  mp = pytest.MonkeyPatch()
+  mp.setattr(pipeline, "print_progress", crash_at_half)
+  with pytest.raises(Interrupted):
+    train(out, save_every=HALF)
+  mp.undo()
+  info = ckpt.load_state_info(out)
+  assert info["env_steps"] == HALF and not (out / "seed_0").exists()
+  return train(out, resume=True, save_every=HALF)
+
+
+def test_resume_equals_uninterrupted_run(uninterrupted, resumed):
+  assert_trees_equal(resumed.params, uninterrupted.params)
+  h_full, h_res = without_walltime(uninterrupted.history), without_walltime(resumed.history)
+  assert sorted(h_full) == sorted(h_res)
+  for k in h_full:
+    assert np.array_equal(h_full[k], h_res[k], equal_nan=True), k
+  assert h_full["env_steps"].shape == (2, CFG.num_chunks)
+  # The whole final TrainState (replay, env states, optimiser states, keys, ...) matches too.
+  (ts_a, hist_a, info_a), (ts_b, hist_b, info_b) = saved_state(uninterrupted.run_dir), saved_state(resumed.run_dir)
+  assert_trees_equal(ts_a, ts_b)
+  assert info_a["env_steps"] == info_b["env_steps"] == CFG.total_env_steps
+  # The saved final state holds the real params and the saved checkpoints hold them too.
+  assert_trees_equal(ts_b.agent.policy_params, resumed.params["policy"])
+  params, _ = ckpt.load(resumed.run_dir, 1)
+  assert_trees_equal(params["policy"], jax.tree.map(lambda x: np.asarray(x[1]), resumed.params["policy"]))
+
+
+def test_same_config_and_seed_give_identical_metrics(uninterrupted, tmp_path):
+  again = train(None)  # no out=: nothing written, same numbers
+  for k, v in without_walltime(uninterrupted.history).items():
+    assert np.array_equal(v, again.history[k], equal_nan=True), k
+  assert_trees_equal(again.params, uninterrupted.params)
+
+
+def test_resume_refuses_a_changed_config(resumed, tmp_path):
+  changed = dataclasses.replace(CFG, actor_lr=1e-3)
+  before = sorted(p.relative_to(resumed.run_dir) for p in resumed.run_dir.rglob("*"))
+  with pytest.raises(ckpt.CheckpointError, match=r"actor_lr: saved 0\.0003, requested 0\.001"):
+    train(resumed.run_dir, config=changed, resume=True)
+  with pytest.raises(ckpt.CheckpointError, match=r"seeds: saved \[0, 3\], requested \[0\]"):
+    train(resumed.run_dir, seeds=[0], resume=True)
+  assert sorted(p.relative_to(resumed.run_dir) for p in resumed.run_dir.rglob("*")) == before
+
+
+# ------------------------------------------------------------------------------------------------
+# NaN guards.
+
+
+@dataclasses.dataclass(frozen=True)
+class NaNRewardAfter:
+  """The toy env, whose rewards are NaN from its ``nan_at``-th step on (counted across episodes)."""
+
+  nan_at: int = 150
+  inner: PointGoal = PointGoal()
+  observation_size, action_size, horizon = ENV.observation_size, ENV.action_size, ENV.horizon
+
+  def reset(self, key):
+    s = self.inner.reset(key)
+    return s.replace(physics=(s.physics, jnp.zeros((), jnp.int32)))
+
+  def step(self, state, action):
+    pos, n = state.physics
+    s = self.inner.step(state.replace(physics=pos), action)
+    return s.replace(physics=(s.physics, n + 1), reward=jnp.where(n + 1 >= self.nan_at, jnp.nan, s.reward))
+
+
+def test_nan_guard_names_term_and_step_and_keeps_last_good_state(tmp_path):
+  env = NaNRewardAfter()
+  first_nan = env.nan_at * CFG.num_envs  # env step of the first NaN reward
+  with pytest.raises(sac_train.TrainingDiverged) as err:
+    train(tmp_path / "run", env=env, seeds=[3], save_every=100)
+  e = err.value
+  assert isinstance(e, FloatingPointError)
+  assert e.term == "critic_loss" and e.seeds == [3] and e.env_step >= first_nan
+  msg = str(e)
+  assert f"critic_loss became NaN/inf at env step {e.env_step} (seed 3)" in msg, msg
+  assert "learning rate" in msg and "last good training state is kept" in msg
+  # The state on disk is the last good one: before the bad chunk, with finite parameters.
+  ts, hist, info = saved_state(tmp_path / "run", seeds=[3], env=env)
+  assert info["env_steps"] < e.env_step <= info["env_steps"] + CFG.env_steps_per_chunk
+  assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(ts.agent))
+  assert np.all(np.isfinite(hist["critic_loss"]))
+  assert not (tmp_path / "run" / "seed_0").exists()  # no final checkpoint of a diverged run
+
+
+def test_check_finite_reports_the_earliest_term():
+  flags = {"nonfinite/actor_loss": np.array([4, -1]), "nonfinite/critic_loss": np.array([4, 2]),
+           "nonfinite/parameters": np.array([24, 24]), "nonfinite/disc/loss": np.array([-1, -1])}
+  with pytest.raises(sac_train.TrainingDiverged, match=r"critic_loss became NaN/inf at env step 1012 \(seed 7\)"):
+    sac_train.check_finite(flags, 1000, 4, [5, 7])
+  sac_train.check_finite({"nonfinite/critic_loss": np.array([-1])}, 0, 4, [0])  # all finite: no error
