@@ -7,6 +7,7 @@ a 2-core CPU); the wiring of the public ``resume=`` keyword is checked by the va
 """
 
 import dataclasses
+import json
 import os
 import signal
 import subprocess
@@ -166,3 +167,139 @@ def test_check_finite_reports_the_earliest_term():
   with pytest.raises(sac_train.TrainingDiverged, match=r"critic_loss became NaN/inf at env step 1012 \(seed 7\)"):
     sac_train.check_finite(flags, 1000, 4, [5, 7])
   sac_train.check_finite({"nonfinite/critic_loss": np.array([-1])}, 0, 4, [0])  # all finite: no error
+
+
+# ------------------------------------------------------------------------------------------------
+# Atomic, versioned checkpoints.
+
+# For each run dir (named <kind>-<point>): saves checkpoint 1, then, in a thread, a second one that
+# blocks at <point>; when all are blocked it prints PAUSED and waits to be SIGKILLed.
+_KILLED_SAVES = textwrap.dedent("""
+    import os, sys, threading, time
+    import numpy as np
+    import orbax.checkpoint as ocp
+    from hdt.transfer import checkpoint as ckpt
+    runs = sys.argv[1:]
+    blocked = threading.Semaphore(0)
+
+    def save(run, value):
+      tree = {"w": np.full((3, 4), value, np.float32)}
+      if "seed-" in run:
+        ckpt.save(run, 0, tree, {"level": "low", "value": value})
+      else:
+        ckpt.save_state(run, tree, {"critic_loss": np.full((2, 3), value)}, {"value": value})
+
+    def block():
+      blocked.release()
+      time.sleep(600)
+
+    # "writing": the arrays of the new checkpoint are on disk, its JSON is not
+    real_save = ocp.PyTreeCheckpointer.save
+    def slow_save(self, path, *a, **k):
+      real_save(self, path, *a, **k)
+      if "writing" in str(path) and state["second"]:
+        block()
+    # "renaming": between the two renames, the old checkpoint already moved to <name>.old
+    real_replace = os.replace
+    def slow_replace(src, dst):
+      real_replace(src, dst)
+      if "renaming" in str(dst) and str(dst).endswith(".old"):
+        block()
+    ocp.PyTreeCheckpointer.save, os.replace = slow_save, slow_replace
+
+    state = {"second": False}
+    for run in runs:
+      save(run, 1.0)
+    state["second"] = True
+    for run in runs:
+      threading.Thread(target=save, args=(run, 2.0), daemon=True).start()
+    for run in runs:
+      blocked.acquire()
+    print("PAUSED", flush=True)
+    time.sleep(600)
+""")
+
+
+def test_sigkill_during_save_leaves_previous_checkpoint_loadable(tmp_path):
+  cases = [(kind, point) for kind in ("seed", "state") for point in ("writing", "renaming")]
+  runs = [str(tmp_path / f"{kind}-{point}") for kind, point in cases]
+  env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
+                                                      os.environ.get("PYTHONPATH", "")]))
+  p = subprocess.Popen([sys.executable, "-c", _KILLED_SAVES, *runs], stdout=subprocess.PIPE,
+                       stderr=subprocess.DEVNULL, text=True, env=env)
+  try:
+    lines = iter(p.stdout.readline, "")  # mujoco may print to stdout first
+    assert any(line.strip() == "PAUSED" for line in lines)
+  finally:
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait(timeout=60)
+  assert p.returncode == -signal.SIGKILL
+  template = {"w": jax.ShapeDtypeStruct((3, 4), np.float32)}
+  for (kind, point), run in zip(cases, map(Path, runs)):
+    # the kill hit where intended: a complete new tree in the temp dir / the old one moved aside
+    assert any(run.glob(".*.tmp")) and (point == "writing") == any(run.glob("*[0e]"))
+    if kind == "seed":
+      params, meta = ckpt.load(run, 0)
+      assert meta["value"] == 1.0
+    else:
+      params, hist, meta = ckpt.load_state(run, template)
+      assert meta["value"] == 1.0 and np.all(hist["critic_loss"] == 1.0)
+    np.testing.assert_array_equal(params["w"], np.ones((3, 4), np.float32))
+    # The next save completes and clears the leftovers of the killed one.
+    (ckpt.save(run, 0, {"w": np.zeros((1,), np.float32)}, {}) if kind == "seed"
+     else ckpt.save_state(run, {"w": np.zeros((1,), np.float32)}, {}, {}))
+    assert sorted(p.name for p in run.iterdir()) == (["seed_0"] if kind == "seed" else ["state"])
+
+
+@pytest.fixture()
+def saved(tmp_path):
+  run = tmp_path / "run"
+  ckpt.save(run, 0, {"policy": {"w": np.arange(4, dtype=np.float32)}}, {"level": "high", "agent": "point"})
+  ckpt.save_state(run, {"w": np.arange(4, dtype=np.float32)}, {"critic_loss": np.zeros((1, 2))}, {})
+  return run
+
+
+def _edit_json(path, **kw):
+  path.write_text(json.dumps(kw if path.read_text().startswith("[") else json.loads(path.read_text()) | kw))
+
+
+@pytest.mark.parametrize("version,fix", [(ckpt.FORMAT_VERSION + 1, "upgrade hdt"), (0, "re-train it"),
+                                         (None, "re-train it")])
+def test_other_format_versions_are_refused(saved, version, fix):
+  _edit_json(saved / "seed_0" / "meta.json", format_version=version)
+  with pytest.raises(ckpt.CheckpointError, match=f"format version {version!r} but this hdt .* reads "
+                     f"version {ckpt.FORMAT_VERSION}: {fix}"):
+    ckpt.load(saved, 0)
+  _edit_json(saved / "state" / "state.json", format_version=version)
+  with pytest.raises(ckpt.CheckpointError, match=f"format version {version!r}.*{fix}"):
+    ckpt.load_state_info(saved)
+
+
+def test_truncated_and_corrupt_files_are_clear(saved):
+  meta = saved / "seed_0" / "meta.json"
+  meta.write_text(meta.read_text()[: len(meta.read_text()) // 2])
+  with pytest.raises(ckpt.CheckpointError, match="corrupt checkpoint metadata .*truncated or damaged: re-run"):
+    ckpt.load(saved, 0)
+  meta.write_text("[1, 2]")
+  with pytest.raises(ckpt.CheckpointError, match="expected a JSON object"):
+    ckpt.load(saved, 0)
+  for d, name in ((saved / "seed_0" / "params", "checkpoint parameters"),
+                  (saved / "state" / "arrays", "training state")):
+    for f in d.rglob("*"):
+      if f.is_file() and f.parent.name == "d":  # the array data files
+        f.write_bytes(b"\x00garbage" * 8)
+  _edit_json(meta, level="high", format_version=ckpt.FORMAT_VERSION)
+  with pytest.raises(ckpt.CheckpointError, match="corrupt checkpoint parameters .*re-run training"):
+    ckpt.load(saved, 0)
+  with pytest.raises(ckpt.CheckpointError, match="corrupt training state .*delete"):
+    ckpt.load_state(saved, {"w": jax.ShapeDtypeStruct((4,), np.float32)})
+
+
+def test_checkpoint_of_another_kind_is_refused(saved):
+  with pytest.raises(ckpt.CheckpointError, match="holds a 'high'-level policy where a low level was expected"):
+    pipeline.load_low(saved)
+  with pytest.raises(ckpt.CheckpointError, match=r"does not fit this run \(saved \['w'\] float32\[4\] where this run "
+                     r"needs \['w'\] float32\[5\]\)"):
+    ckpt.load_state(saved, {"w": jax.ShapeDtypeStruct((5,), np.float32)})
+  with pytest.raises(ckpt.CheckpointError, match="no saved training state"):
+    ckpt.load_state_info(saved / "seed_0")

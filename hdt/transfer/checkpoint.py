@@ -228,10 +228,12 @@ def load_state(run_dir: str | Path, template: Any) -> tuple[Any, dict[str, np.nd
   want = _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat])
   got = info.get("leaves", [])
   if got != want:
-    diff = next(((g, w) for g, w in zip(got, want) if g != w), (got[len(want):], want[len(got):]))
-    raise CheckpointError(f"the training state in {d} does not fit this run (saved {diff[0]} where "
-                          f"{diff[1]} is needed): it was written by another configuration or hdt version; "
-                          f"start a new run in another out= directory")
+    fmt = lambda spec: f"{spec[0]} {spec[2]}{spec[1]}" if spec else "nothing"
+    saved, needed = next(((g, w) for g, w in zip(got, want) if g != w),
+                         (got[len(want):len(want) + 1], want[len(got):len(got) + 1]))
+    raise CheckpointError(f"the training state in {d} does not fit this run (saved {fmt(saved)} where "
+                          f"this run needs {fmt(needed)}): it was written by another configuration or hdt "
+                          f"version; start a new run in another out= directory")
   try:
     arrays = ocp.PyTreeCheckpointer().restore(d / "arrays")
     state = [np.asarray(arrays["state"][f"{i:05d}"]) for i in range(len(want))]

@@ -210,7 +210,11 @@ def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None
                    record=False, delta_max=None, **task_overrides) -> HighLevelEnv:
   """The HL env of ``task`` over an LL described by its checkpoint metadata. The inner env's own
   time limit is disabled: the HL env counts HL steps."""
-  hl_horizon = hl_horizon or task_overrides.pop("hl_horizon", None) or TASKS[task]().hl_horizon
+  if task not in TASKS:
+    raise ValueError(f"unknown task {task!r}; valid tasks: {', '.join(TASKS)}")
+  # hl_horizon may come as a task override too; it never reaches the inner env
+  overridden = task_overrides.pop("hl_horizon", None)
+  hl_horizon = next((h for h in (hl_horizon, overridden) if h is not None), TASKS[task]().hl_horizon)
   inner = make(low_meta["agent"], task, backend=backend, hl_horizon=10**6,
                **(low_meta.get("env_overrides") or {}) | task_overrides)
   if inner.obs_lo_size + 2 != low_meta["obs_size"]:
@@ -218,8 +222,8 @@ def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None
         f"the LL observes {low_meta['obs_size']} numbers but {low_meta['agent']} on {task} gives "
         f"{inner.obs_lo_size} + 2: was it trained with other options (e.g. rangefinders for steps)?")
   fn = low_policy_fn(low_meta["hidden_sizes"], low_meta["obs_size"], low_meta["action_size"])
-  return HighLevelEnv(inner, fn, low_params, k=k or low_meta["k"], hl_horizon=hl_horizon, record=record,
-                      delta_max=delta_max or low_meta["delta_max"])
+  return HighLevelEnv(inner, fn, low_params, k=low_meta["k"] if k is None else k, hl_horizon=hl_horizon,
+                      record=record, delta_max=low_meta["delta_max"] if delta_max is None else delta_max)
 
 
 def high_env(task: str, low: str | Path, low_seed: int = 0, backend="auto", **kw) -> HighLevelEnv:
