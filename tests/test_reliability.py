@@ -303,3 +303,134 @@ def test_checkpoint_of_another_kind_is_refused(saved):
     ckpt.load_state(saved, {"w": jax.ShapeDtypeStruct((5,), np.float32)})
   with pytest.raises(ckpt.CheckpointError, match="no saved training state"):
     ckpt.load_state_info(saved / "seed_0")
+
+
+# ------------------------------------------------------------------------------------------------
+# Bad inputs fail with a message naming the problem and the fix, before anything is written.
+
+from hdt.envs import make  # noqa: E402
+from hdt.transfer import configs  # noqa: E402
+from hdt.transfer.align import align_low  # noqa: E402
+from hdt.transfer.evaluate import compose, evaluate  # noqa: E402
+from hdt.transfer.finetune import finetune_high  # noqa: E402
+from hdt.transfer.hierarchy import HighLevelEnv  # noqa: E402
+from hdt.transfer.pipeline import train_full, train_high, train_low  # noqa: E402
+
+PCFG = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=25, batch_size=16,
+                          buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+  """Checkpoints written without training (their metadata is what the checks read)."""
+  root = tmp_path_factory.mktemp("fake_runs")
+  w = {"w": np.zeros((2,), np.float32)}
+
+  def low(agent, **extra):
+    return pipeline.env_meta(make(agent, "reach"), "low", PCFG, env_overrides={}) | extra
+
+  metas = dict(point_low=low("point"), arm_low=low("arm3"), point_low_box2=low("point", delta_max=2.0),
+               point_high=low("point", level="high", task="waypoint"))
+  for name, meta in metas.items():
+    ckpt.save(root / name, 0, {"policy": w, "q": w}, dict(meta, seed=0))
+  ckpt.save(root / "corrupt", 0, {"policy": w}, metas["point_low"])
+  (root / "corrupt" / "seed_0" / "meta.json").write_text('{"level": "lo')  # truncated
+  ckpt.save_state(root / "point_state", w, {}, dict(config=dataclasses.asdict(PCFG), seeds=[0],
+                                                    meta=metas["point_low"]))
+  (root / "a_file").write_text("not a run directory")
+  return root
+
+
+def _low(runs, **kw):
+  return lambda out: train_low("point", PCFG, out=out, quiet=True, **kw)
+
+
+BAD_INPUTS = {
+    # configuration
+    "zero batch": (lambda r: lambda out: SACConfig(batch_size=0), "batch_size=0: must be a positive integer"),
+    "negative buffer": (lambda r: lambda out: SACConfig(buffer_size=-5), "buffer_size=-5: must be a positive"),
+    "batch > buffer": (lambda r: lambda out: configs.low_config("point", batch_size=2000, buffer_size=1000),
+                       "batch_size=2000 > buffer_size=1000: lower batch_size or raise buffer_size"),
+    "no hidden layers": (lambda r: lambda out: SACConfig(hidden_sizes=()), "give at least one hidden layer"),
+    "zero learning rate": (lambda r: lambda out: SACConfig(actor_lr=0.0), "actor_lr=0.0: learning rates must be positive"),
+    "partial chunk": (lambda r: lambda out: SACConfig(total_env_steps=1000, steps_per_chunk=300),
+                      "not a multiple of num_envs\\*steps_per_chunk=300: set total_env_steps to 900"),
+    # environments
+    "unknown agent": (lambda r: lambda out: train_low("nope", PCFG, out=out), "unknown agent 'nope'; valid agents: point"),
+    "unknown task": (lambda r: lambda out: make("point", "nope"), "unknown task 'nope'; valid tasks: reach"),
+    "unsupported pair": (lambda r: lambda out: train_full("ant", "push1", out=out),
+                         "agent 'ant' cannot run task 'push1' .*tasks for ant: reach"),
+    "unknown override": (lambda r: lambda out: train_low("point", PCFG, out=out, wheels=4), "unknown override"),
+    "k <= 0 (HighLevelEnv)": (lambda r: lambda out: HighLevelEnv(make("point", "waypoint"), None, None, k=-1),
+                              "k \\(LL steps per HL action\\) must be positive, got -1"),
+    "zero sub-goal box": (lambda r: lambda out: HighLevelEnv(make("point", "waypoint"), None, None, delta_max=0),
+                          "delta_max .* must be positive, got 0.0"),
+    # seeds and run arguments
+    "zero seeds": (lambda r: _low(r, seeds=0), "seeds=0: the number of seeds must be positive"),
+    "negative seed count": (lambda r: _low(r, seeds=-2), "seeds=-2: the number of seeds must be positive"),
+    "negative seed": (lambda r: _low(r, seeds=[0, -1]), "list of integers >= 0"),
+    "repeated seeds": (lambda r: _low(r, seeds=[1, 1]), "seeds repeat"),
+    "zero save_every": (lambda r: _low(r, save_every=0), "save_every=0: give a positive number of env steps"),
+    "out is a file": (lambda r: lambda out: train_low("point", PCFG, out=r / "a_file"), "is an existing file"),
+    "resume without out": (lambda r: lambda out: train_low("point", PCFG, resume=True),
+                           "resume=True needs out=: the run directory of the interrupted run"),
+    "resume missing run": (lambda r: _low(r, resume=True), "cannot resume: .* does not exist; start the run without resume"),
+    "resume a run without state": (lambda r: lambda out: train_low("point", PCFG, out=r / "point_low", resume=True),
+                                   "has no saved training state"),
+    "resume changed config": (lambda r: lambda out: train_low("point", configs.replace(PCFG, actor_lr=1e-3),
+                                                              out=r / "point_state", resume=True),
+                              "config.actor_lr: saved 0.0003, requested 0.001.*another out= directory"),
+    "resume another agent's run": (lambda r: lambda out: train_low("arm3", PCFG, out=out, resume=r / "point_state"),
+                                   "meta.agent: saved 'point', requested 'arm3'"),
+    "resume another level's run": (lambda r: lambda out: train_full("point", "waypoint", PCFG, out=out,
+                                                                    resume=r / "point_state"),
+                                   "meta.level: saved 'low', requested 'full'.*meta.task: saved 'reach', "
+                                   "requested 'waypoint'"),
+    # hand-offs between levels
+    "missing LL run": (lambda r: lambda out: train_high("waypoint", r / "nope", out=out), "nope does not exist"),
+    "HL where LL expected": (lambda r: lambda out: train_high("waypoint", r / "point_high", out=out),
+                             "holds a 'high'-level policy where a low level was expected"),
+    "LL seed out of range": (lambda r: lambda out: train_high("waypoint", r / "point_low", low_seed=3, out=out),
+                             "no checkpoint for seed 3 .*seeds present: \\[0\\]"),
+    "HL k = 0": (lambda r: lambda out: train_high("waypoint", r / "point_low", k=0, out=out),
+                 "k \\(LL steps per HL action\\) must be positive, got 0"),
+    "HL unknown task": (lambda r: lambda out: train_high("nope", r / "point_low", out=out), "unknown task 'nope'"),
+    "nav HL on arm LL": (lambda r: lambda out: train_high("waypoint", r / "arm_low", out=out),
+                         "agent 'arm3' cannot run task 'waypoint'"),
+    "finetune from an LL": (lambda r: lambda out: finetune_high(r / "point_low", r / "point_low", "waypoint", out=out),
+                            "finetune_high needs an HL"),
+    "negative KL weight": (lambda r: lambda out: finetune_high(r / "point_high", r / "point_low", "waypoint", kl=-1,
+                                                               out=out), "kl=-1: the KL weight must be"),
+    "align across families": (lambda r: lambda out: align_low("arm3", r / "point_low", out=out),
+                              "cannot align 'arm3' .*goal spaces differ"),
+    "imitate an HL": (lambda r: lambda out: train_low("point", PCFG, imitate=r / "point_high", out=out),
+                      "where a low level was expected"),
+    "compose LL as HL": (lambda r: lambda out: compose(r / "point_low", r / "point_low"), "compose needs an HL"),
+    "compose nav HL, arm LL": (lambda r: lambda out: compose(r / "point_high", r / "arm_low"),
+                               "goal spaces do not match.*pair an HL and an LL of the same family"),
+    "compose other goal box": (lambda r: lambda out: compose(r / "point_high", r / "point_low_box2"),
+                               "goal boxes differ.*pass box='scale'"),
+    "compose corrupt run": (lambda r: lambda out: compose(r / "point_high", r / "corrupt"),
+                            "corrupt checkpoint metadata .*re-run training"),
+    "evaluate 0 episodes": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), episodes=0),
+                            "episodes=0: the number of evaluation episodes must be a positive"),
+    "evaluate unknown task": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), "nope"),
+                              "unknown task 'nope'"),
+    "evaluate missing seed": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), seeds=[2]),
+                              "seeds=\\[2\\]: pick seed indices of the policy, in 0..0"),
+}
+
+
+def _snapshot(root: Path) -> dict:
+  return {str(p.relative_to(root)): (p.stat().st_mtime_ns, p.stat().st_size) for p in root.rglob("*")}
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUTS))
+def test_bad_input_fails_clearly_and_writes_nothing(case, runs, tmp_path):
+  make_call, message = BAD_INPUTS[case]
+  out = tmp_path / "out"
+  before = _snapshot(runs)
+  with pytest.raises(ValueError, match=message):  # CheckpointError is a ValueError
+    make_call(runs)(out)
+  assert not out.exists()
+  assert _snapshot(runs) == before

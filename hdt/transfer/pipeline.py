@@ -138,7 +138,9 @@ def _resume(source: Path, trainer, info: dict):
   """The saved TrainState (device arrays) and history of ``source``, refused if the saved run was
   started with another configuration, run metadata or seeds than ``info`` describes."""
   saved = ckpt.load_state_info(source)
-  diffs = ckpt.differences({k: saved.get(k) for k in info}, info)
+  no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m != "sac"} if k == "meta" else d.get(k))
+                      for k in info}  # meta["sac"] repeats the config
+  diffs = ckpt.differences(no_sac(saved), no_sac(info))
   if diffs:
     raise ckpt.CheckpointError(
         f"cannot resume from {source}: the saved run differs from the requested one in "
