@@ -185,8 +185,7 @@ def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, ba
               quiet=False, imitate=None, disc=None, resume=False, save_every=None,
               **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` on its ``reach`` task (SPEC 3). With ``imitate=<LL run of A>``
-  the LL is aligned to A's behaviour by a discriminator (Algorithm 1, ``hdt.transfer.align``).
-  """
+  the LL is aligned to A's behaviour by a discriminator (Algorithm 1, ``hdt.transfer.align``)."""
   if imitate is not None:
     from hdt.transfer.align import align_low  # align builds on this module
     kw = {} if disc is None else {"disc": disc}
@@ -256,4 +255,5 @@ def train_full(agent: str, task: str, config: SACConfig | None = None, seeds=1, 
 
 
 for _f in (train_low, train_high, train_full):
-  _f.__doc__ += RESUME_DOC
+  _f.__doc__ = (_f.__doc__ or "") + RESUME_DOC  # (None under python -OO)
+del _f
