@@ -20,7 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hdt.agents import discriminator as disc_lib
 from hdt.agents import train as sac_train
+from hdt.agents.discriminator import DiscConfig
 from hdt.agents.sac import SACConfig
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import pipeline
@@ -32,14 +34,20 @@ CFG = SACConfig(hidden_sizes=(16, 16), batch_size=16, buffer_size=500, num_envs=
                 total_env_steps=800, learning_starts=40, num_eval_episodes=4)
 META = dict(level="low", agent="toy", task="reach")
 HALF = CFG.total_env_steps // 2
+# The resumed runs carry plug-in state too: a discriminator (hdt.transfer.align's) against random taus.
+_ALIGN = disc_lib.make_alignment(
+    DiscConfig(batch_size=8, hidden_sizes=(8,), buffer_size=256),
+    np.random.default_rng(0).normal(size=(256, disc_lib.TAU_SIZE)).astype(np.float32),
+    CFG.total_env_steps, CFG.num_envs)
+ALIGN = dict(reward_fn=_ALIGN.reward_fn, aux_init=_ALIGN.aux_init, aux_update=_ALIGN.aux_update)
 
 
 class Interrupted(Exception):
   pass
 
 
-def train(out, config=CFG, seeds=(0, 3), env=ENV, **kw):
-  return pipeline._run(env, config, list(seeds), out, META, True, "toy", **kw)
+def train(out, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN, **kw):
+  return pipeline._run(env, config, list(seeds), out, META, True, "toy", **kw, **plugins)
 
 
 def without_walltime(history):
@@ -54,8 +62,8 @@ def assert_trees_equal(a, b):
     assert np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
 
 
-def saved_state(run_dir, config=CFG, seeds=(0, 3), env=ENV):
-  trainer = sac_train.make_train(env, config)
+def saved_state(run_dir, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN):
+  trainer = sac_train.make_train(env, config, **plugins)
   template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(list(seeds)))
   return ckpt.load_state(run_dir, template)
 
@@ -96,6 +104,7 @@ def test_resume_equals_uninterrupted_run(uninterrupted, resumed):
   # The whole final TrainState (replay, env states, optimiser states, keys, ...) matches too.
   (ts_a, hist_a, info_a), (ts_b, hist_b, info_b) = saved_state(uninterrupted.run_dir), saved_state(resumed.run_dir)
   assert_trees_equal(ts_a, ts_b)
+  assert int(ts_b.aux["size"][0]) > 0 and "disc/loss" in h_res  # the plug-in state was live
   assert info_a["env_steps"] == info_b["env_steps"] == CFG.total_env_steps
   # The saved final state holds the real params and the saved checkpoints hold them too.
   assert_trees_equal(ts_b.agent.policy_params, resumed.params["policy"])
@@ -146,7 +155,7 @@ def test_nan_guard_names_term_and_step_and_keeps_last_good_state(tmp_path):
   env = NaNRewardAfter()
   first_nan = env.nan_at * CFG.num_envs  # env step of the first NaN reward
   with pytest.raises(sac_train.TrainingDiverged) as err:
-    train(tmp_path / "run", env=env, seeds=[3], save_every=100)
+    train(tmp_path / "run", env=env, seeds=[3], save_every=100, plugins={})
   e = err.value
   assert isinstance(e, FloatingPointError)
   assert e.term == "critic_loss" and e.seeds == [3] and e.env_step >= first_nan
@@ -154,7 +163,7 @@ def test_nan_guard_names_term_and_step_and_keeps_last_good_state(tmp_path):
   assert f"critic_loss became NaN/inf at env step {e.env_step} (seed 3)" in msg, msg
   assert "learning rate" in msg and "last good training state is kept" in msg
   # The state on disk is the last good one: before the bad chunk, with finite parameters.
-  ts, hist, info = saved_state(tmp_path / "run", seeds=[3], env=env)
+  ts, hist, info = saved_state(tmp_path / "run", seeds=[3], env=env, plugins={})
   assert info["env_steps"] < e.env_step <= info["env_steps"] + CFG.env_steps_per_chunk
   assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(ts.agent))
   assert np.all(np.isfinite(hist["critic_loss"]))
