@@ -364,6 +364,8 @@ BAD_INPUTS = {
     "zero learning rate": (lambda r: lambda out: SACConfig(actor_lr=0.0), "actor_lr=0.0: learning rates must be positive"),
     "partial chunk": (lambda r: lambda out: SACConfig(total_env_steps=1000, steps_per_chunk=300),
                       "not a multiple of num_envs\\*steps_per_chunk=300: set total_env_steps to 900"),
+    "zero discriminator batch": (lambda r: lambda out: DiscConfig(batch_size=0, stop=2.0),
+                                 "batch_size=0 must be a positive integer; stop=2.0 must be in \\(0, 1\\]"),
     # environments
     "unknown agent": (lambda r: lambda out: train_low("nope", PCFG, out=out), "unknown agent 'nope'; valid agents: point"),
     "unknown task": (lambda r: lambda out: make("point", "nope"), "unknown task 'nope'; valid tasks: reach"),
