@@ -1,9 +1,12 @@
 """Checkpoints: orbax for the parameter pytree, JSON for the metadata that makes a hand-off safe.
 
 A run directory holds ``config.json``, ``meta.json``, ``metrics.csv`` and one sub-directory per seed
-(``seed_0``, ``seed_1``, ...), each with ``params/`` (orbax) and its own ``meta.json``. A seed
-directory is written under a temporary name and renamed into place, so a killed save leaves the
-previous checkpoint loadable.
+(``seed_0``, ``seed_1``, ...), each with ``params/`` (orbax) and its own ``meta.json``, and
+``state/``: the resumable training state (``arrays/`` orbax, ``state.json``). Each of these
+directories is written under a temporary name and renamed into place, so a save killed at any point
+(tested with SIGKILL) leaves the previous version loadable. Metadata carries ``format_version``;
+another version, damaged files, or a checkpoint of the wrong kind raise :class:`CheckpointError`
+saying what to do.
 """
 
 from __future__ import annotations
