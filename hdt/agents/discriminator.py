@@ -49,12 +49,14 @@ class DiscConfig:
   buffer_size: int = 100_000  # circular buffer of B's taus
 
   def __post_init__(self):
-    if self.batch_size <= 0 or self.update_every <= 0 or self.buffer_size <= 0:
-      raise ValueError("batch_size, update_every and buffer_size must be positive")
-    if not 0.0 < self.w_frac <= 1.0 or not 0.0 < self.stop <= 1.0:
-      raise ValueError("w_frac and stop must be in (0, 1]")
-    if self.reward_clip <= 0:
-      raise ValueError("reward_clip must be positive")
+    bad = [f"{k}={getattr(self, k)!r} must be a positive integer" for k in
+           ("batch_size", "update_every", "buffer_size") if not getattr(self, k) > 0]
+    bad += [f"{k}={getattr(self, k)!r} must be in (0, 1]" for k in ("w_frac", "stop")
+            if not 0.0 < getattr(self, k) <= 1.0]
+    bad += [f"{k}={getattr(self, k)!r} must be positive" for k in ("lr", "reward_clip")
+            if not getattr(self, k) > 0]
+    if bad:
+      raise ValueError(f"invalid DiscConfig: {'; '.join(bad)}; the defaults are the paper's values")
 
 
 class Discriminator(nn.Module):

@@ -88,6 +88,67 @@ def _set_obs_norm(agent: SACState, stats) -> SACState:
   )
 
 
+NONFINITE = "nonfinite/"  # run_chunk metrics prefix: first non-finite step in the chunk, or -1
+
+
+def _all_finite(tree) -> jax.Array:
+  leaves = [jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(tree)
+            if jnp.issubdtype(jnp.asarray(x).dtype, jnp.inexact)]
+  return jnp.all(jnp.stack(leaves)) if leaves else jnp.ones((), bool)
+
+
+def _nonfinite_flags(m: dict, ts: "TrainState") -> dict:
+  """Per loss term, the index of the chunk's first training step where it was NaN/inf (-1: none);
+  parameters and plug-in state are checked once, at the end of the chunk (index steps-1). Computed
+  inside the jitted chunk so that the host can stop at the first bad chunk for a few bytes."""
+  def first_bad(ok_per_step):
+    bad = ~ok_per_step
+    return jnp.where(jnp.any(bad), jnp.argmax(bad), -1).astype(jnp.int32)
+
+  per_step = {k: v for k, v in m["update"].items() if k.endswith("loss")}
+  per_step |= {k: v for k, v in m["aux"].items() if k.endswith("loss")}
+  flags = {NONFINITE + k: first_bad(jnp.isfinite(v).reshape(v.shape[0], -1).all(axis=1))
+           for k, v in per_step.items()}
+  last = m["learn"].shape[0] - 1
+  for name, tree in (("parameters", ts.agent), ("aux_state", ts.aux)):
+    flags[NONFINITE + name] = jnp.where(_all_finite(tree), -1, last).astype(jnp.int32)
+  return flags
+
+
+class TrainingDiverged(FloatingPointError):
+  """A loss term or the parameters became NaN/inf; raised by :func:`run` after the bad chunk."""
+
+  def __init__(self, message: str, term: str, env_step: int, seeds: list):
+    super().__init__(message)
+    self.term, self.env_step, self.seeds = term, env_step, seeds
+
+
+def check_finite(flags: dict, chunk_start: int, num_envs: int, seeds: Sequence[int]) -> None:
+  """Raises :class:`TrainingDiverged` naming the first non-finite term (earliest env step, then
+  the order critic, actor, alpha, plug-in losses, parameters) of a chunk's ``nonfinite/`` flags
+  (per seed arrays)."""
+  priority = {"critic_loss": 0, "actor_loss": 1, "alpha_loss": 2, "parameters": 4, "aux_state": 5}
+  worst = None
+  for k, v in flags.items():
+    order = priority.get(k[len(NONFINITE):], 3)  # the order they are computed in
+    v = np.asarray(v).reshape(-1)
+    bad = np.flatnonzero(v >= 0)
+    if bad.size:
+      step = chunk_start + (int(v[bad].min()) + 1) * num_envs
+      cand = (step, order, k[len(NONFINITE):], [seeds[i] for i in bad if v[i] == v[bad].min()])
+      worst = min(worst, cand) if worst else cand
+  if worst is None:
+    return
+  step, _, term, bad_seeds = worst
+  what = "the network/temperature parameters" if term == "parameters" else (
+      "the plug-in (e.g. discriminator) state" if term == "aux_state" else term)
+  raise TrainingDiverged(
+      f"{what} became NaN/inf at env step {step} (seed{'s' if len(bad_seeds) > 1 else ''} "
+      f"{', '.join(map(str, bad_seeds))}); training stopped there. Try lower learning rates "
+      f"(actor_lr/critic_lr/alpha_lr) or reward_scale, and check the environment and reward plug-ins "
+      f"for NaN/inf rewards or observations.", term, step, bad_seeds)
+
+
 def _uniform01_from_bits(bits: jax.Array) -> jax.Array:
   """float32 in [0, 1) from uint32 bits (23 random mantissa bits, as jax.random.uniform)."""
   mantissa = jnp.right_shift(bits, jnp.uint32(9)) | jnp.uint32(0x3F800000)
@@ -251,6 +312,7 @@ def make_train(
     metrics["train_episodes"] = episodes
     metrics["env_steps"] = ts.env_steps
     metrics["update_steps"] = ts.agent.update_steps
+    metrics.update(_nonfinite_flags(m, ts))
     return ts, metrics
 
   # ---------------------------------------------------------------------------------------------
@@ -334,6 +396,25 @@ class RunResult(NamedTuple):
   state: TrainState  # final TrainState (leading axis = seeds), for checkpointing / resuming
 
 
+def seed_list(seeds: int | Sequence[int]) -> list[int]:
+  """``seeds`` as a list: an int n means ``0..n-1``; a list must hold distinct ints >= 0."""
+  if isinstance(seeds, (bool, np.bool_)) or not isinstance(seeds, (int, np.integer, Sequence, np.ndarray)):
+    raise ValueError(f"seeds={seeds!r}: pass a number of seeds (e.g. 3 for seeds 0, 1, 2) or a list of "
+                     f"seeds (e.g. [0, 5])")
+  if isinstance(seeds, (int, np.integer)):
+    if seeds <= 0:
+      raise ValueError(f"seeds={seeds}: the number of seeds must be positive (e.g. seeds=1), or pass a "
+                       f"list of seeds such as [0]")
+    return list(range(int(seeds)))
+  out = list(seeds)
+  if not out or any(isinstance(s, (bool, np.bool_)) or not isinstance(s, (int, np.integer)) or s < 0
+                    for s in out):
+    raise ValueError(f"seeds={seeds!r}: give a non-empty list of integers >= 0, e.g. [0, 1, 2]")
+  if len(set(out)) != len(out):
+    raise ValueError(f"seeds={seeds!r}: seeds repeat, so those runs would be identical; list each once")
+  return [int(s) for s in out]
+
+
 def seed_keys(seeds: Sequence[int]) -> jax.Array:
   """The training keys :func:`run` uses: ``PRNGKey(seed)`` stacked over seeds."""
   return jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
@@ -376,6 +457,8 @@ def run(
     initial_state: TrainState | None = None,
     eval_at_start: bool = True,
     trainer: Trainer | None = None,
+    initial_history: dict | None = None,
+    on_chunk: Callable[[int, TrainState, dict], None] | None = None,
     **plugins,
 ) -> RunResult:
   """Trains ``len(seeds)`` seeds in lock-step (vmapped) and returns params and history.
@@ -392,14 +475,22 @@ def run(
   trainer: a :class:`Trainer` from ``make_train(env, config, ...)`` to reuse (with its compiled
     functions, see :func:`vmapped`); its config may differ from ``config`` only in
     ``total_env_steps``. Without it, ``make_train(env, config, **plugins)`` is built.
+  initial_history: the history (as returned in RunResult.history) of the run ``initial_state``
+    came from; the new records are appended to it, so a resumed run returns the same history as
+    an uninterrupted one.
+  on_chunk(env_steps, ts, history): called after every chunk (and its evaluation) with the new
+    TrainState and the history so far (name -> list of per-seed arrays), before ``progress_fn``;
+    e.g. to save resumable state. ``ts`` is donated to the next chunk: copy what you keep.
   plugins: forwarded to :func:`make_train` (actor_regularizer, reward_fn, aux_init, ...).
+
+  After every chunk the loss terms and parameters are checked (flags computed inside the jitted
+  chunk): the first NaN/inf raises :class:`TrainingDiverged` naming the term, env step and seed,
+  before ``on_chunk`` sees the bad state.
 
   History: training metrics have shape (seeds, chunks) (``env_steps`` says where);
   ``eval/...`` entries have shape (seeds, evaluations) (``eval/env_steps`` says where).
   """
-  seeds = list(range(seeds)) if isinstance(seeds, int) else [int(s) for s in seeds]
-  if not seeds:
-    raise ValueError("seeds must be a positive int or a non-empty list of ints")
+  seeds = seed_list(seeds)
   chunk_steps = config.env_steps_per_chunk
   if eval_every is None:
     eval_every = chunk_steps
@@ -430,7 +521,10 @@ def run(
   chunk_fn, eval_fn = fns.run_chunk, fns.evaluate
   start_chunk = int(np.asarray(ts.env_steps).reshape(-1)[0]) // chunk_steps
 
-  hist: dict[str, list] = {}
+  # Records are per-seed arrays; a resumed run continues the saved history (and its wall clock).
+  hist: dict[str, list] = {k: list(np.swapaxes(np.asarray(v), 0, 1))
+                           for k, v in (initial_history or {}).items()}
+  t_offset = float(hist["walltime"][-1].max()) if hist.get("walltime") else 0.0
 
   def evaluate(index, step):
     k = jax.vmap(eval_key, in_axes=(0, None))(keys, index)
@@ -447,12 +541,16 @@ def run(
   for c in range(start_chunk, config.num_chunks):
     ts, m = chunk_fn(ts)
     m = {k: np.asarray(v) for k, v in sharding_lib.to_host(m).items()}
+    check_finite({k: m.pop(k) for k in list(m) if k.startswith(NONFINITE)}, c * chunk_steps,
+                 config.num_envs, seeds)
     step = (c + 1) * chunk_steps
-    m["walltime"] = np.full(len(seeds), time.perf_counter() - t0)
+    m["walltime"] = np.full(len(seeds), t_offset + time.perf_counter() - t0)
     for k, v in m.items():
       hist.setdefault(k, []).append(v)
     if step % eval_every == 0 or c == config.num_chunks - 1:
       m.update(evaluate(c + 1, step))
+    if on_chunk is not None:
+      on_chunk(step, ts, hist)
     if progress_fn is not None:
       progress_fn(step, m)
 

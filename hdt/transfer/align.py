@@ -21,13 +21,13 @@ from hdt.transfer.pipeline import RunResult, _run, env_meta, load_low
 def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
               disc: DiscConfig = DiscConfig(), seeds=1, out=None, n_offline: int = 20_000,
               backend: str = "auto", quiet: bool = False, imitate_seed: int = 0,
-              offline_seed: int = 0, **env_overrides) -> RunResult:
+              offline_seed: int = 0, resume=False, save_every=None, **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` aligned to the LL saved in ``imitate`` (agent A).
 
   A's taus: ``n_offline`` transitions of A's deterministic LL on uniformly sampled goals
   (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by
   all seeds. Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
-  ``discriminator`` (the DiscConfig).
+  ``discriminator`` (the DiscConfig). ``resume``, ``save_every``: as in :func:`train_low`.
   """
   _, meta_a, _ = load_low(imitate, imitate_seed)
   env = make(agent, "reach", backend=backend, **env_overrides)
@@ -50,7 +50,7 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
                                     tau_scale=tau_scale),
               discriminator=dataclasses.asdict(disc))
   return _run(env, config, seeds, out, meta, quiet, f"align {agent}<-{meta_a['agent']}",
-              reward_fn=al.reward_fn, aux_init=al.aux_init, aux_update=al.aux_update,
+              resume, save_every, reward_fn=al.reward_fn, aux_init=al.aux_init, aux_update=al.aux_update,
               # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
               save_extra=lambda ts: {"discriminator": ts.aux["params"]})
 

@@ -1,9 +1,12 @@
 """Checkpoints: orbax for the parameter pytree, JSON for the metadata that makes a hand-off safe.
 
 A run directory holds ``config.json``, ``meta.json``, ``metrics.csv`` and one sub-directory per seed
-(``seed_0``, ``seed_1``, ...), each with ``params/`` (orbax) and its own ``meta.json``. A seed
-directory is written under a temporary name and renamed into place, so a killed save leaves the
-previous checkpoint loadable.
+(``seed_0``, ``seed_1``, ...), each with ``params/`` (orbax) and its own ``meta.json``, and
+``state/``: the resumable training state (``arrays/`` orbax, ``state.json``). Each of these
+directories is written under a temporary name and renamed into place, so a save killed at any point
+(tested with SIGKILL) leaves the previous version loadable. Metadata carries ``format_version``;
+another version, damaged files, or a checkpoint of the wrong kind raise :class:`CheckpointError`
+saying what to do.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import numpy as np
@@ -48,17 +51,17 @@ def seed_dir(run_dir: Path, seed_index: int) -> Path:
   return Path(run_dir) / f"seed_{seed_index}"
 
 
-def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict) -> Path:
-  """Atomically write one seed's parameters and metadata into ``run_dir/seed_<i>``."""
-  run_dir = Path(run_dir).resolve()  # orbax wants absolute paths
-  run_dir.mkdir(parents=True, exist_ok=True)
-  final = seed_dir(run_dir, seed_index)
-  tmp = Path(tempfile.mkdtemp(dir=run_dir, prefix=f".{final.name}.", suffix=".tmp"))
+def _atomic_dir(final: Path, write: Callable[[Path], None]) -> Path:
+  """Runs ``write(tmp)`` on a fresh temporary sibling of ``final``, then swaps it in with two renames
+  (final -> final.old, tmp -> final). Killed at any point, either ``final`` or ``final.old`` is a
+  complete earlier version (loaders fall back to ``.old``); a killed write leaves only a hidden
+  ``.<name>.*.tmp`` directory, removed by the next write of the same name (one writer per name)."""
+  final.parent.mkdir(parents=True, exist_ok=True)
+  for stale in final.parent.glob(f".{final.name}.*.tmp"):
+    shutil.rmtree(stale, ignore_errors=True)
+  tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".tmp"))
   try:
-    params = jax.tree.map(np.asarray, jax.device_get(params))
-    ocp.PyTreeCheckpointer().save(tmp / "params", params)
-    meta = dict(meta, format_version=FORMAT_VERSION, hdt_version=hdt.__version__, seed_index=seed_index)
-    write_json_atomic(tmp / "meta.json", meta)
+    write(tmp)
     old = final.with_name(final.name + ".old")
     if final.exists():
       if old.exists():
@@ -73,15 +76,34 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict) -> Path:
   return final
 
 
-def _resolve_seed_dir(run_dir: Path, seed_index: int) -> Path:
-  d = seed_dir(run_dir, seed_index)
+def _resolve(d: Path) -> Path | None:
+  """``d``, or ``d.old`` when a write was killed between its two renames, or None."""
   if d.exists():
     return d
-  old = d.with_name(d.name + ".old")  # a save was killed between its two renames
-  if old.exists():
-    return old
-  raise CheckpointError(f"no checkpoint for seed {seed_index} in {run_dir} (expected {d}); "
-                        f"seeds present: {list_seeds(run_dir) or 'none'}")
+  old = d.with_name(d.name + ".old")
+  return old if old.exists() else None
+
+
+def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict) -> Path:
+  """Atomically write one seed's parameters and metadata into ``run_dir/seed_<i>``."""
+  run_dir = Path(run_dir).resolve()  # orbax wants absolute paths
+  params = jax.tree.map(np.asarray, jax.device_get(params))
+  meta = dict(meta, format_version=FORMAT_VERSION, hdt_version=hdt.__version__, seed_index=seed_index)
+
+  def write(tmp: Path):
+    ocp.PyTreeCheckpointer().save(tmp / "params", params)
+    write_json_atomic(tmp / "meta.json", meta)
+
+  return _atomic_dir(seed_dir(run_dir, seed_index), write)
+
+
+def _resolve_seed_dir(run_dir: Path, seed_index: int) -> Path:
+  d = _resolve(seed_dir(run_dir, seed_index))
+  if d is None:
+    raise CheckpointError(f"no checkpoint for seed {seed_index} in {run_dir} (expected "
+                          f"{seed_dir(run_dir, seed_index)}); seeds present: "
+                          f"{list_seeds(run_dir) or 'none'}")
+  return d
 
 
 def list_seeds(run_dir: str | Path) -> list[int]:
@@ -102,16 +124,28 @@ def load_meta(run_dir: str | Path, seed_index: int = 0) -> dict:
     raise CheckpointError(f"checkpoint directory {run_dir} does not exist; pass the RUN directory a "
                           f"training command printed (it holds seed_0/, seed_1/, ...)")
   d = _resolve_seed_dir(run_dir, seed_index)
+  return _read_meta(d / "meta.json")
+
+
+def _read_meta(path: Path) -> dict:
+  """A checkpoint's JSON metadata, checked to be readable and of this hdt's format version."""
   try:
-    meta = json.loads((d / "meta.json").read_text())
-  except (OSError, json.JSONDecodeError) as e:
-    raise CheckpointError(f"corrupt checkpoint metadata {d / 'meta.json'}: {e}; re-run training or "
-                          f"restore the file") from e
+    meta = json.loads(path.read_text())
+    if not isinstance(meta, dict):
+      raise ValueError(f"expected a JSON object, found {type(meta).__name__}")
+  except (OSError, ValueError) as e:  # JSONDecodeError is a ValueError
+    raise CheckpointError(f"corrupt checkpoint metadata {path}: {e}; the file is truncated or damaged: "
+                          f"re-run training, or restore the file from a backup") from e
   fv = meta.get("format_version")
   if fv != FORMAT_VERSION:
-    raise CheckpointError(f"checkpoint {d} has format version {fv}, this hdt ({hdt.__version__}) reads "
-                          f"version {FORMAT_VERSION}: re-train it or load it with hdt "
-                          f"{meta.get('hdt_version', '?')}")
+    d = path.parent
+    if isinstance(fv, int) and fv > FORMAT_VERSION:
+      fix = f"upgrade hdt (this is {hdt.__version__}) to read it"
+    else:
+      fix = (f"re-train it, or load it with the hdt that wrote it "
+             f"({meta.get('hdt_version', 'unknown version')})")
+    raise CheckpointError(f"checkpoint {d} has format version {fv!r} but this hdt ({hdt.__version__}) "
+                          f"reads version {FORMAT_VERSION}: {fix}")
   return meta
 
 
@@ -122,7 +156,8 @@ def load(run_dir: str | Path, seed_index: int = 0) -> tuple[Any, dict]:
   try:
     params = ocp.PyTreeCheckpointer().restore(d / "params")
   except Exception as e:  # orbax raises several types for damaged files
-    raise CheckpointError(f"corrupt checkpoint parameters in {d / 'params'}: {e}") from e
+    raise CheckpointError(f"corrupt checkpoint parameters in {d / 'params'} ({type(e).__name__}: "
+                          f"{e}); re-run training, or restore the directory from a backup") from e
   return params, meta
 
 
@@ -134,3 +169,97 @@ def load_all(run_dir: str | Path) -> tuple[Any, list[dict]]:
   loaded = [load(run_dir, s) for s in seeds]
   params = jax.tree.map(lambda *x: np.stack(x), *[p for p, _ in loaded])
   return params, [m for _, m in loaded]
+
+
+# ------------------------------------------------------------------------------------------------
+# Resumable training state: ``run_dir/state/`` holds the whole vmapped TrainState (parameters,
+# targets, optimiser states, temperature, plug-in state, replay buffer, env states, RNG keys,
+# counters) and the history so far, so that a resumed run continues bit for bit.
+
+STATE = "state"
+
+
+def state_dir(run_dir: str | Path) -> Path:
+  return Path(run_dir) / STATE
+
+
+def _leaf_specs(named) -> list[list]:
+  """[name, shape, dtype] of (name, array or ShapeDtypeStruct) pairs, as stored in state.json."""
+  return [[name, list(x.shape), str(np.dtype(x.dtype))] for name, x in named]
+
+
+def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], info: dict) -> Path:
+  """Atomically write ``tree`` (any pytree of arrays, e.g. a TrainState), ``history`` (name ->
+  array) and the JSON ``info`` (config, run metadata, ...) into ``run_dir/state``. The previous
+  state stays loadable until the new one is complete."""
+  run_dir = Path(run_dir).resolve()
+  flat, _ = jax.tree_util.tree_flatten_with_path(jax.device_get(tree))
+  leaves = [(jax.tree_util.keystr(path), np.asarray(x)) for path, x in flat]
+  hist = [(k, np.asarray(v)) for k, v in history.items()]
+  # orbax keys must be plain names: index them, and keep the real names in state.json
+  arrays = {"state": {f"{i:05d}": x for i, (_, x) in enumerate(leaves)},
+            "history": {f"{i:05d}": x for i, (_, x) in enumerate(hist)}}
+  info = dict(info, format_version=FORMAT_VERSION, hdt_version=hdt.__version__, kind="train_state",
+              leaves=_leaf_specs(leaves), history=_leaf_specs(hist))
+
+  def write(tmp: Path):
+    ocp.PyTreeCheckpointer().save(tmp / "arrays", {k: v for k, v in arrays.items() if v})
+    write_json_atomic(tmp / "state.json", info)
+
+  return _atomic_dir(state_dir(run_dir), write)
+
+
+def load_state_info(run_dir: str | Path) -> dict:
+  """``state.json`` of the resumable state in ``run_dir`` (checked readable and of this format)."""
+  d = _resolve(state_dir(run_dir))
+  if d is None:
+    what = "does not exist" if not Path(run_dir).exists() else f"has no saved training state ({STATE}/)"
+    raise CheckpointError(f"cannot resume: {run_dir} {what}; start the run without resume (or pass the "
+                          f"out= directory of the interrupted run)")
+  info = _read_meta(d / "state.json")
+  if info.get("kind") != "train_state":
+    raise CheckpointError(f"{d} is not a training state (kind={info.get('kind')!r}); re-run training")
+  return info
+
+
+def load_state(run_dir: str | Path, template: Any) -> tuple[Any, dict[str, np.ndarray], dict]:
+  """(tree, history, info) saved by :func:`save_state`; ``tree`` has the structure of ``template``
+  (e.g. ``jax.eval_shape`` of the trainer's init), whose leaf names, shapes and dtypes must match."""
+  info = load_state_info(run_dir)
+  d = _resolve(state_dir(Path(run_dir).resolve()))
+  flat, treedef = jax.tree_util.tree_flatten_with_path(template)
+  want = _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat])
+  got = info.get("leaves", [])
+  if got != want:
+    fmt = lambda spec: f"{spec[0]} {spec[2]}{spec[1]}" if spec else "nothing"
+    saved, needed = next(((g, w) for g, w in zip(got, want) if g != w),
+                         (got[len(want):len(want) + 1], want[len(got):len(got) + 1]))
+    raise CheckpointError(f"the training state in {d} does not fit this run (saved {fmt(saved)} where "
+                          f"this run needs {fmt(needed)}): it was written by another configuration or hdt "
+                          f"version; start a new run in another out= directory")
+  try:
+    arrays = ocp.PyTreeCheckpointer().restore(d / "arrays")
+    state = [np.asarray(arrays["state"][f"{i:05d}"]) for i in range(len(want))]
+    hist = {name: np.asarray(arrays["history"][f"{i:05d}"])
+            for i, (name, _, _) in enumerate(info.get("history", []))}
+  except Exception as e:  # orbax raises several types for damaged files
+    raise CheckpointError(f"corrupt training state in {d / 'arrays'} ({type(e).__name__}: {e}); "
+                          f"delete {d} to start over, or restore it from a backup") from e
+  for (name, shape, dtype), x in zip(want + info.get("history", []), state + list(hist.values())):
+    if list(x.shape) != shape or str(x.dtype) != dtype:
+      raise CheckpointError(f"corrupt training state in {d}: {name} has shape {x.shape} {x.dtype}, "
+                            f"state.json says {shape} {dtype}; delete {d} to start over")
+  return jax.tree_util.tree_unflatten(treedef, state), hist, info
+
+
+def differences(saved: Any, requested: Any, path: str = "") -> list[str]:
+  """Human-readable differences ``path: saved X, requested Y`` between two JSON-like values
+  (compared after a JSON round trip, so tuples equal lists)."""
+  norm = lambda x: json.loads(json.dumps(x, sort_keys=True, default=_jsonable))
+  saved, requested = norm(saved), norm(requested)
+  if isinstance(saved, dict) and isinstance(requested, dict):
+    out = []
+    for k in sorted(set(saved) | set(requested)):
+      out += differences(saved.get(k, "<unset>"), requested.get(k, "<unset>"), f"{path}.{k}".lstrip("."))
+    return out
+  return [] if saved == requested else [f"{path or 'value'}: saved {saved!r}, requested {requested!r}"]

@@ -13,6 +13,7 @@ import numpy as np
 from hdt.agents.sac import SACConfig
 from hdt.agents.train import make_train
 from hdt.envs import make
+from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer.pipeline import build_high_env, hl_obs_layout, low_policy_fn
 
@@ -99,7 +100,15 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   """Deterministic evaluation of every seed of ``policy`` (vmapped): per-seed mean return and
   success, and their mean and std across seeds, as in the paper's tables."""
   n = policy.num_seeds
+  if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes <= 0:
+    raise ValueError(f"episodes={episodes!r}: the number of evaluation episodes must be a positive "
+                     f"integer, e.g. 100")
+  if task is not None and task not in TASKS:
+    raise ValueError(f"unknown task {task!r}; valid tasks: {', '.join(TASKS)}")
   idx = np.arange(n) if seeds is None else np.asarray(seeds)
+  if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer) or \
+      idx.min() < 0 or idx.max() >= n:
+    raise ValueError(f"seeds={seeds!r}: pick seed indices of the policy, in 0..{n - 1}")
   hidden = tuple(policy.meta["hidden_sizes"])
   cfg = SACConfig(hidden_sizes=hidden, num_eval_episodes=episodes, total_env_steps=1000,
                   steps_per_chunk=1000, batch_size=1, buffer_size=1, learning_starts=0)

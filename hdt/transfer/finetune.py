@@ -50,7 +50,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   config: SACConfig | None = None, seeds=1, out=None, anneal_frac: float = 0.5,
                   mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
                   lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
-                  **task_overrides) -> RunResult:
+                  resume=False, save_every=None, **task_overrides) -> RunResult:
   """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
 
   kl: initial weight beta of the KL term (paper: 1 for Waypoint / manipulation, 0.01 for Maze);
@@ -63,6 +63,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
     manipulation, 0.001 Maze).
   low_seed: the seed of ``low`` whose LL drives every HL seed (as in ``train_high``).
   reference_seed: A's seed used as the frozen KL reference for every seed.
+  resume, save_every: as in :func:`hdt.transfer.pipeline.train_low` (a resumed run restarts from its
+    saved state, not from A's HL).
   """
   if mode not in MODES:
     raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi_B || pi_A)) or 'reverse' (KL(pi_A || pi_B))")
@@ -102,9 +104,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   if lr is not None:
     config = configs.replace(config, actor_lr=lr, critic_lr=lr, alpha_lr=lr)
 
-  seed_list = list(range(seeds)) if isinstance(seeds, int) else [int(s) for s in seeds]
-  if not seed_list:
-    raise ValueError("seeds must be a positive int or a non-empty list of ints")
+  seed_list = sac_train.seed_list(seeds)
   n = len(seed_list)
   anneal_steps = anneal_frac * config.total_env_steps
 
@@ -141,4 +141,5 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
-  return _run(env, config, seed_list, out, meta, quiet, label, initial_state=ts, trainer=trainer)
+  return _run(env, config, seed_list, out, meta, quiet, label, resume, save_every, initial_state=ts,
+              trainer=trainer)

@@ -53,11 +53,19 @@ class HighLevelEnv:
     self.env = env
     self.low_policy = low_policy
     self.low_params = low_params
-    self.k = int(k or env.agent.k)
+    # None means the agent's / task's default; 0 is an error, not a default.
+    self.k = int(env.agent.k if k is None else k)
     if self.k <= 0:
-      raise ValueError(f"k (LL steps per HL action) must be positive, got {self.k}")
-    self.horizon = int(hl_horizon or env.task.hl_horizon)
-    self.delta_max = float(delta_max or env.agent.delta_max)
+      raise ValueError(f"k (LL steps per HL action) must be positive, got {self.k}; e.g. the agent's "
+                       f"default k={env.agent.k}")
+    self.horizon = int(env.task.hl_horizon if hl_horizon is None else hl_horizon)
+    if self.horizon <= 0:
+      raise ValueError(f"hl_horizon (HL steps per episode) must be positive, got {self.horizon}; e.g. "
+                       f"the task's default {env.task.hl_horizon}")
+    self.delta_max = float(env.agent.delta_max if delta_max is None else delta_max)
+    if not self.delta_max > 0:
+      raise ValueError(f"delta_max (half-width of the sub-goal box) must be positive, got "
+                       f"{self.delta_max}; e.g. the agent's default {env.agent.delta_max}")
     self.early_stop = early_stop
     self.record = record
     self.action_size = 2

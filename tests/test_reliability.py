@@ -1,0 +1,447 @@
+"""Reliability (issue 9): exact resume, atomic versioned checkpoints, determinism, NaN guards and
+argument validation that fails before anything is written.
+
+Training runs use the toy point-goal env of toy_env.py through ``pipeline._run``, the function every
+``train_*`` / ``finetune_high`` / ``align_low`` call ends in (MuJoCo envs compile for over a minute on
+a 2-core CPU); the wiring of the public ``resume=`` keyword is checked by the validation cases.
+"""
+
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hdt.agents import discriminator as disc_lib
+from hdt.agents import train as sac_train
+from hdt.agents.discriminator import DiscConfig
+from hdt.agents.sac import SACConfig
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import pipeline
+from toy_env import PointGoal
+
+ENV = PointGoal()
+# 8 chunks of 25 training steps x 4 envs; learning starts in the first chunk.
+CFG = SACConfig(hidden_sizes=(16, 16), batch_size=16, buffer_size=500, num_envs=4, steps_per_chunk=25,
+                total_env_steps=800, learning_starts=40, num_eval_episodes=4)
+META = dict(level="low", agent="toy", task="reach")
+HALF = CFG.total_env_steps // 2
+# The resumed runs carry plug-in state too: a discriminator (hdt.transfer.align's) against random taus.
+_ALIGN = disc_lib.make_alignment(
+    DiscConfig(batch_size=8, hidden_sizes=(8,), buffer_size=256),
+    np.random.default_rng(0).normal(size=(256, disc_lib.TAU_SIZE)).astype(np.float32),
+    CFG.total_env_steps, CFG.num_envs)
+ALIGN = dict(reward_fn=_ALIGN.reward_fn, aux_init=_ALIGN.aux_init, aux_update=_ALIGN.aux_update)
+
+
+class Interrupted(Exception):
+  pass
+
+
+def train(out, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN, **kw):
+  return pipeline._run(env, config, list(seeds), out, META, True, "toy", **kw, **plugins)
+
+
+def without_walltime(history):
+  return {k: v for k, v in history.items() if k != "walltime"}  # the only non-deterministic record
+
+
+def assert_trees_equal(a, b):
+  la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+  assert jax.tree.structure(a) == jax.tree.structure(b) and len(la) == len(lb)
+  for x, y in zip(la, lb):
+    assert np.asarray(x).dtype == np.asarray(y).dtype
+    assert np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True)
+
+
+def saved_state(run_dir, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN):
+  trainer = sac_train.make_train(env, config, **plugins)
+  template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(list(seeds)))
+  return ckpt.load_state(run_dir, template)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+  return train(tmp_path_factory.mktemp("runs") / "full", save_every=HALF)
+
+
+@pytest.fixture(scope="module")
+def resumed(tmp_path_factory):
+  """The same run killed (an exception) right after its state was saved at HALF, then resumed."""
+  out = tmp_path_factory.mktemp("runs") / "resumed"
+
+  def crash_at_half(total, quiet, label):
+    def progress(step, metrics):
+      if step == HALF:
+        raise Interrupted(step)
+    return progress
+
+  mp = pytest.MonkeyPatch()
+  mp.setattr(pipeline, "print_progress", crash_at_half)
+  with pytest.raises(Interrupted):
+    train(out, save_every=HALF)
+  mp.undo()
+  info = ckpt.load_state_info(out)
+  assert info["env_steps"] == HALF and not (out / "seed_0").exists()
+  return train(out, resume=True, save_every=HALF)
+
+
+def test_resume_equals_uninterrupted_run(uninterrupted, resumed):
+  assert_trees_equal(resumed.params, uninterrupted.params)
+  h_full, h_res = without_walltime(uninterrupted.history), without_walltime(resumed.history)
+  assert sorted(h_full) == sorted(h_res)
+  for k in h_full:
+    assert np.array_equal(h_full[k], h_res[k], equal_nan=True), k
+  assert h_full["env_steps"].shape == (2, CFG.num_chunks)
+  # The whole final TrainState (replay, env states, optimiser states, keys, ...) matches too.
+  (ts_a, hist_a, info_a), (ts_b, hist_b, info_b) = saved_state(uninterrupted.run_dir), saved_state(resumed.run_dir)
+  assert_trees_equal(ts_a, ts_b)
+  assert int(ts_b.aux["size"][0]) > 0 and "disc/loss" in h_res  # the plug-in state was live
+  assert info_a["env_steps"] == info_b["env_steps"] == CFG.total_env_steps
+  # The saved final state holds the real params and the saved checkpoints hold them too.
+  assert_trees_equal(ts_b.agent.policy_params, resumed.params["policy"])
+  params, _ = ckpt.load(resumed.run_dir, 1)
+  assert_trees_equal(params["policy"], jax.tree.map(lambda x: np.asarray(x[1]), resumed.params["policy"]))
+
+
+def test_same_config_and_seed_give_identical_metrics(uninterrupted, tmp_path):
+  again = train(None)  # no out=: nothing written, same numbers
+  for k, v in without_walltime(uninterrupted.history).items():
+    assert np.array_equal(v, again.history[k], equal_nan=True), k
+  assert_trees_equal(again.params, uninterrupted.params)
+
+
+def test_resume_refuses_a_changed_config(resumed, tmp_path):
+  changed = dataclasses.replace(CFG, actor_lr=1e-3)
+  before = sorted(p.relative_to(resumed.run_dir) for p in resumed.run_dir.rglob("*"))
+  with pytest.raises(ckpt.CheckpointError, match=r"actor_lr: saved 0\.0003, requested 0\.001"):
+    train(resumed.run_dir, config=changed, resume=True)
+  with pytest.raises(ckpt.CheckpointError, match=r"seeds: saved \[0, 3\], requested \[0\]"):
+    train(resumed.run_dir, seeds=[0], resume=True)
+  assert sorted(p.relative_to(resumed.run_dir) for p in resumed.run_dir.rglob("*")) == before
+
+
+# ------------------------------------------------------------------------------------------------
+# NaN guards.
+
+
+@dataclasses.dataclass(frozen=True)
+class NaNRewardAfter:
+  """The toy env, whose rewards are NaN from its ``nan_at``-th step on (counted across episodes)."""
+
+  nan_at: int = 150
+  inner: PointGoal = PointGoal()
+  observation_size, action_size, horizon = ENV.observation_size, ENV.action_size, ENV.horizon
+
+  def reset(self, key):
+    s = self.inner.reset(key)
+    return s.replace(physics=(s.physics, jnp.zeros((), jnp.int32)))
+
+  def step(self, state, action):
+    pos, n = state.physics
+    s = self.inner.step(state.replace(physics=pos), action)
+    return s.replace(physics=(s.physics, n + 1), reward=jnp.where(n + 1 >= self.nan_at, jnp.nan, s.reward))
+
+
+def test_nan_guard_names_term_and_step_and_keeps_last_good_state(tmp_path):
+  env = NaNRewardAfter()
+  first_nan = env.nan_at * CFG.num_envs  # env step of the first NaN reward
+  with pytest.raises(sac_train.TrainingDiverged) as err:
+    train(tmp_path / "run", env=env, seeds=[3], save_every=100, plugins={})
+  e = err.value
+  assert isinstance(e, FloatingPointError)
+  assert e.term == "critic_loss" and e.seeds == [3] and e.env_step >= first_nan
+  msg = str(e)
+  assert f"critic_loss became NaN/inf at env step {e.env_step} (seed 3)" in msg, msg
+  assert "learning rate" in msg and "last good training state is kept" in msg
+  # The state on disk is the last good one: before the bad chunk, with finite parameters.
+  ts, hist, info = saved_state(tmp_path / "run", seeds=[3], env=env, plugins={})
+  assert info["env_steps"] < e.env_step <= info["env_steps"] + CFG.env_steps_per_chunk
+  assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(ts.agent))
+  assert np.all(np.isfinite(hist["critic_loss"]))
+  assert not (tmp_path / "run" / "seed_0").exists()  # no final checkpoint of a diverged run
+
+
+def test_check_finite_reports_the_earliest_term():
+  flags = {"nonfinite/actor_loss": np.array([4, -1]), "nonfinite/critic_loss": np.array([4, 2]),
+           "nonfinite/parameters": np.array([24, 24]), "nonfinite/disc/loss": np.array([-1, -1])}
+  with pytest.raises(sac_train.TrainingDiverged, match=r"critic_loss became NaN/inf at env step 1012 \(seed 7\)"):
+    sac_train.check_finite(flags, 1000, 4, [5, 7])
+  sac_train.check_finite({"nonfinite/critic_loss": np.array([-1])}, 0, 4, [0])  # all finite: no error
+
+
+# ------------------------------------------------------------------------------------------------
+# Atomic, versioned checkpoints.
+
+# For each run dir (named <kind>-<point>): saves checkpoint 1, then, in a thread, a second one that
+# blocks at <point>; when all are blocked it prints PAUSED and waits to be SIGKILLed.
+_KILLED_SAVES = textwrap.dedent("""
+    import os, sys, threading, time
+    import numpy as np
+    import orbax.checkpoint as ocp
+    from hdt.transfer import checkpoint as ckpt
+    runs = sys.argv[1:]
+    blocked = threading.Semaphore(0)
+
+    def save(run, value):
+      tree = {"w": np.full((3, 4), value, np.float32)}
+      if "seed-" in run:
+        ckpt.save(run, 0, tree, {"level": "low", "value": value})
+      else:
+        ckpt.save_state(run, tree, {"critic_loss": np.full((2, 3), value)}, {"value": value})
+
+    def block():
+      blocked.release()
+      time.sleep(600)
+
+    # "writing": the arrays of the new checkpoint are on disk, its JSON is not
+    real_save = ocp.PyTreeCheckpointer.save
+    def slow_save(self, path, *a, **k):
+      real_save(self, path, *a, **k)
+      if "writing" in str(path) and state["second"]:
+        block()
+    # "renaming": between the two renames, the old checkpoint already moved to <name>.old
+    real_replace = os.replace
+    def slow_replace(src, dst):
+      real_replace(src, dst)
+      if "renaming" in str(dst) and str(dst).endswith(".old"):
+        block()
+    ocp.PyTreeCheckpointer.save, os.replace = slow_save, slow_replace
+
+    state = {"second": False}
+    for run in runs:
+      save(run, 1.0)
+    state["second"] = True
+    for run in runs:
+      threading.Thread(target=save, args=(run, 2.0), daemon=True).start()
+    for run in runs:
+      blocked.acquire()
+    print("PAUSED", flush=True)
+    time.sleep(600)
+""")
+
+
+def test_sigkill_during_save_leaves_previous_checkpoint_loadable(tmp_path):
+  cases = [(kind, point) for kind in ("seed", "state") for point in ("writing", "renaming")]
+  runs = [str(tmp_path / f"{kind}-{point}") for kind, point in cases]
+  env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
+                                                      os.environ.get("PYTHONPATH", "")]))
+  p = subprocess.Popen([sys.executable, "-c", _KILLED_SAVES, *runs], stdout=subprocess.PIPE,
+                       stderr=subprocess.DEVNULL, text=True, env=env)
+  try:
+    lines = iter(p.stdout.readline, "")  # mujoco may print to stdout first
+    assert any(line.strip() == "PAUSED" for line in lines)
+  finally:
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait(timeout=60)
+  assert p.returncode == -signal.SIGKILL
+  template = {"w": jax.ShapeDtypeStruct((3, 4), np.float32)}
+  for (kind, point), run in zip(cases, map(Path, runs)):
+    # the kill hit where intended: a complete new tree in the temp dir / the old one moved aside
+    assert any(run.glob(".*.tmp")) and (point == "writing") == any(run.glob("*[0e]"))
+    if kind == "seed":
+      params, meta = ckpt.load(run, 0)
+      assert meta["value"] == 1.0
+    else:
+      params, hist, meta = ckpt.load_state(run, template)
+      assert meta["value"] == 1.0 and np.all(hist["critic_loss"] == 1.0)
+    np.testing.assert_array_equal(params["w"], np.ones((3, 4), np.float32))
+    # The next save completes and clears the leftovers of the killed one.
+    (ckpt.save(run, 0, {"w": np.zeros((1,), np.float32)}, {}) if kind == "seed"
+     else ckpt.save_state(run, {"w": np.zeros((1,), np.float32)}, {}, {}))
+    assert sorted(p.name for p in run.iterdir()) == (["seed_0"] if kind == "seed" else ["state"])
+
+
+@pytest.fixture()
+def saved(tmp_path):
+  run = tmp_path / "run"
+  ckpt.save(run, 0, {"policy": {"w": np.arange(4, dtype=np.float32)}}, {"level": "high", "agent": "point"})
+  ckpt.save_state(run, {"w": np.arange(4, dtype=np.float32)}, {"critic_loss": np.zeros((1, 2))}, {})
+  return run
+
+
+def _edit_json(path, **kw):
+  path.write_text(json.dumps(kw if path.read_text().startswith("[") else json.loads(path.read_text()) | kw))
+
+
+@pytest.mark.parametrize("version,fix", [(ckpt.FORMAT_VERSION + 1, "upgrade hdt"), (0, "re-train it"),
+                                         (None, "re-train it")])
+def test_other_format_versions_are_refused(saved, version, fix):
+  _edit_json(saved / "seed_0" / "meta.json", format_version=version)
+  with pytest.raises(ckpt.CheckpointError, match=f"format version {version!r} but this hdt .* reads "
+                     f"version {ckpt.FORMAT_VERSION}: {fix}"):
+    ckpt.load(saved, 0)
+  _edit_json(saved / "state" / "state.json", format_version=version)
+  with pytest.raises(ckpt.CheckpointError, match=f"format version {version!r}.*{fix}"):
+    ckpt.load_state_info(saved)
+
+
+def test_truncated_and_corrupt_files_are_clear(saved):
+  meta = saved / "seed_0" / "meta.json"
+  meta.write_text(meta.read_text()[: len(meta.read_text()) // 2])
+  with pytest.raises(ckpt.CheckpointError, match="corrupt checkpoint metadata .*truncated or damaged: re-run"):
+    ckpt.load(saved, 0)
+  meta.write_text("[1, 2]")
+  with pytest.raises(ckpt.CheckpointError, match="expected a JSON object"):
+    ckpt.load(saved, 0)
+  for d, name in ((saved / "seed_0" / "params", "checkpoint parameters"),
+                  (saved / "state" / "arrays", "training state")):
+    for f in d.rglob("*"):
+      if f.is_file() and f.parent.name == "d":  # the array data files
+        f.write_bytes(b"\x00garbage" * 8)
+  _edit_json(meta, level="high", format_version=ckpt.FORMAT_VERSION)
+  with pytest.raises(ckpt.CheckpointError, match="corrupt checkpoint parameters .*re-run training"):
+    ckpt.load(saved, 0)
+  with pytest.raises(ckpt.CheckpointError, match="corrupt training state .*delete"):
+    ckpt.load_state(saved, {"w": jax.ShapeDtypeStruct((4,), np.float32)})
+
+
+def test_checkpoint_of_another_kind_is_refused(saved):
+  with pytest.raises(ckpt.CheckpointError, match="holds a 'high'-level policy where a low level was expected"):
+    pipeline.load_low(saved)
+  with pytest.raises(ckpt.CheckpointError, match=r"does not fit this run \(saved \['w'\] float32\[4\] where this run "
+                     r"needs \['w'\] float32\[5\]\)"):
+    ckpt.load_state(saved, {"w": jax.ShapeDtypeStruct((5,), np.float32)})
+  with pytest.raises(ckpt.CheckpointError, match="no saved training state"):
+    ckpt.load_state_info(saved / "seed_0")
+
+
+# ------------------------------------------------------------------------------------------------
+# Bad inputs fail with a message naming the problem and the fix, before anything is written.
+
+from hdt.envs import make  # noqa: E402
+from hdt.transfer import configs  # noqa: E402
+from hdt.transfer.align import align_low  # noqa: E402
+from hdt.transfer.evaluate import compose, evaluate  # noqa: E402
+from hdt.transfer.finetune import finetune_high  # noqa: E402
+from hdt.transfer.hierarchy import HighLevelEnv  # noqa: E402
+from hdt.transfer.pipeline import train_full, train_high, train_low  # noqa: E402
+
+PCFG = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=25, batch_size=16,
+                          buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+  """Checkpoints written without training (their metadata is what the checks read)."""
+  root = tmp_path_factory.mktemp("fake_runs")
+  w = {"w": np.zeros((2,), np.float32)}
+
+  def low(agent, **extra):
+    return pipeline.env_meta(make(agent, "reach"), "low", PCFG, env_overrides={}) | extra
+
+  metas = dict(point_low=low("point"), arm_low=low("arm3"), point_low_box2=low("point", delta_max=2.0),
+               point_high=low("point", level="high", task="waypoint"))
+  for name, meta in metas.items():
+    ckpt.save(root / name, 0, {"policy": w, "q": w}, dict(meta, seed=0))
+  ckpt.save(root / "corrupt", 0, {"policy": w}, metas["point_low"])
+  (root / "corrupt" / "seed_0" / "meta.json").write_text('{"level": "lo')  # truncated
+  ckpt.save_state(root / "point_state", w, {}, dict(config=dataclasses.asdict(PCFG), seeds=[0],
+                                                    meta=metas["point_low"]))
+  (root / "a_file").write_text("not a run directory")
+  return root
+
+
+def _low(runs, **kw):
+  return lambda out: train_low("point", PCFG, out=out, quiet=True, **kw)
+
+
+BAD_INPUTS = {
+    # configuration
+    "zero batch": (lambda r: lambda out: SACConfig(batch_size=0), "batch_size=0: must be a positive integer"),
+    "negative buffer": (lambda r: lambda out: SACConfig(buffer_size=-5), "buffer_size=-5: must be a positive"),
+    "batch > buffer": (lambda r: lambda out: configs.low_config("point", batch_size=2000, buffer_size=1000),
+                       "batch_size=2000 > buffer_size=1000: lower batch_size or raise buffer_size"),
+    "no hidden layers": (lambda r: lambda out: SACConfig(hidden_sizes=()), "give at least one hidden layer"),
+    "zero learning rate": (lambda r: lambda out: SACConfig(actor_lr=0.0), "actor_lr=0.0: learning rates must be positive"),
+    "partial chunk": (lambda r: lambda out: SACConfig(total_env_steps=1000, steps_per_chunk=300),
+                      "not a multiple of num_envs\\*steps_per_chunk=300: set total_env_steps to 900"),
+    "zero discriminator batch": (lambda r: lambda out: DiscConfig(batch_size=0, stop=2.0),
+                                 "batch_size=0 must be a positive integer; stop=2.0 must be in \\(0, 1\\]"),
+    # environments
+    "unknown agent": (lambda r: lambda out: train_low("nope", PCFG, out=out), "unknown agent 'nope'; valid agents: point"),
+    "unknown task": (lambda r: lambda out: make("point", "nope"), "unknown task 'nope'; valid tasks: reach"),
+    "unsupported pair": (lambda r: lambda out: train_full("ant", "push1", out=out),
+                         "agent 'ant' cannot run task 'push1' .*tasks for ant: reach"),
+    "unknown override": (lambda r: lambda out: train_low("point", PCFG, out=out, wheels=4), "unknown override"),
+    "k <= 0 (HighLevelEnv)": (lambda r: lambda out: HighLevelEnv(make("point", "waypoint"), None, None, k=-1),
+                              "k \\(LL steps per HL action\\) must be positive, got -1"),
+    "zero sub-goal box": (lambda r: lambda out: HighLevelEnv(make("point", "waypoint"), None, None, delta_max=0),
+                          "delta_max .* must be positive, got 0.0"),
+    # seeds and run arguments
+    "zero seeds": (lambda r: _low(r, seeds=0), "seeds=0: the number of seeds must be positive"),
+    "negative seed count": (lambda r: _low(r, seeds=-2), "seeds=-2: the number of seeds must be positive"),
+    "negative seed": (lambda r: _low(r, seeds=[0, -1]), "list of integers >= 0"),
+    "repeated seeds": (lambda r: _low(r, seeds=[1, 1]), "seeds repeat"),
+    "zero save_every": (lambda r: _low(r, save_every=0), "save_every=0: give a positive number of env steps"),
+    "out is a file": (lambda r: lambda out: train_low("point", PCFG, out=r / "a_file"), "is an existing file"),
+    "resume without out": (lambda r: lambda out: train_low("point", PCFG, resume=True),
+                           "resume=True needs out=: the run directory of the interrupted run"),
+    "resume missing run": (lambda r: _low(r, resume=True), "cannot resume: .* does not exist; start the run without resume"),
+    "resume a run without state": (lambda r: lambda out: train_low("point", PCFG, out=r / "point_low", resume=True),
+                                   "has no saved training state"),
+    "resume changed config": (lambda r: lambda out: train_low("point", configs.replace(PCFG, actor_lr=1e-3),
+                                                              out=r / "point_state", resume=True),
+                              "config.actor_lr: saved 0.0003, requested 0.001.*another out= directory"),
+    "resume another agent's run": (lambda r: lambda out: train_low("arm3", PCFG, out=out, resume=r / "point_state"),
+                                   "meta.agent: saved 'point', requested 'arm3'"),
+    "resume another level's run": (lambda r: lambda out: train_full("point", "waypoint", PCFG, out=out,
+                                                                    resume=r / "point_state"),
+                                   "meta.level: saved 'low', requested 'full'.*meta.task: saved 'reach', "
+                                   "requested 'waypoint'"),
+    # hand-offs between levels
+    "missing LL run": (lambda r: lambda out: train_high("waypoint", r / "nope", out=out), "nope does not exist"),
+    "HL where LL expected": (lambda r: lambda out: train_high("waypoint", r / "point_high", out=out),
+                             "holds a 'high'-level policy where a low level was expected"),
+    "LL seed out of range": (lambda r: lambda out: train_high("waypoint", r / "point_low", low_seed=3, out=out),
+                             "no checkpoint for seed 3 .*seeds present: \\[0\\]"),
+    "HL k = 0": (lambda r: lambda out: train_high("waypoint", r / "point_low", k=0, out=out),
+                 "k \\(LL steps per HL action\\) must be positive, got 0"),
+    "HL unknown task": (lambda r: lambda out: train_high("nope", r / "point_low", out=out), "unknown task 'nope'"),
+    "nav HL on arm LL": (lambda r: lambda out: train_high("waypoint", r / "arm_low", out=out),
+                         "agent 'arm3' cannot run task 'waypoint'"),
+    "finetune from an LL": (lambda r: lambda out: finetune_high(r / "point_low", r / "point_low", "waypoint", out=out),
+                            "finetune_high needs an HL"),
+    "negative KL weight": (lambda r: lambda out: finetune_high(r / "point_high", r / "point_low", "waypoint", kl=-1,
+                                                               out=out), "kl=-1: the KL weight must be"),
+    "align across families": (lambda r: lambda out: align_low("arm3", r / "point_low", out=out),
+                              "cannot align 'arm3' .*goal spaces differ"),
+    "imitate an HL": (lambda r: lambda out: train_low("point", PCFG, imitate=r / "point_high", out=out),
+                      "where a low level was expected"),
+    "compose LL as HL": (lambda r: lambda out: compose(r / "point_low", r / "point_low"), "compose needs an HL"),
+    "compose nav HL, arm LL": (lambda r: lambda out: compose(r / "point_high", r / "arm_low"),
+                               "goal spaces do not match.*pair an HL and an LL of the same family"),
+    "compose other goal box": (lambda r: lambda out: compose(r / "point_high", r / "point_low_box2"),
+                               "goal boxes differ.*pass box='scale'"),
+    "compose corrupt run": (lambda r: lambda out: compose(r / "point_high", r / "corrupt"),
+                            "corrupt checkpoint metadata .*re-run training"),
+    "evaluate 0 episodes": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), episodes=0),
+                            "episodes=0: the number of evaluation episodes must be a positive"),
+    "evaluate unknown task": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), "nope"),
+                              "unknown task 'nope'"),
+    "evaluate missing seed": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), seeds=[2]),
+                              "seeds=\\[2\\]: pick seed indices of the policy, in 0..0"),
+}
+
+
+def _snapshot(root: Path) -> dict:
+  return {str(p.relative_to(root)): (p.stat().st_mtime_ns, p.stat().st_size) for p in root.rglob("*")}
+
+
+@pytest.mark.parametrize("case", list(BAD_INPUTS))
+def test_bad_input_fails_clearly_and_writes_nothing(case, runs, tmp_path):
+  make_call, message = BAD_INPUTS[case]
+  out = tmp_path / "out"
+  before = _snapshot(runs)
+  with pytest.raises(ValueError, match=message):  # CheckpointError is a ValueError
+    make_call(runs)(out)
+  assert not out.exists()
+  assert _snapshot(runs) == before
