@@ -334,14 +334,21 @@ def main():
 
 
 def update_results(out):
-  vals = {}
+  """sbx_speedup_<agent>_reach: the wall-clock ratio at the primary threshold; if hdt did not reach
+  it in every seed, at the tightest threshold it did reach in every seed (the source says which)."""
   for a, r in out["agents"].items():
-    c = r["by_threshold"].get(str(r["threshold"]), {})
-    if "speedup_seconds" in c:
-      vals[f"sbx_speedup_{a}_reach"] = c["speedup_seconds"]
-  if vals:
-    results_lib.update(vals, "benchmarks/time_to_quality.py (median wall-clock incl. JIT compile, "
-                       "primary threshold)", load=out["machine"].get("load_end"))
+    cands = [(float(t), c) for t, c in r["by_threshold"].items()
+             if "speedup_seconds" in c and c["hdt_all_reached"]]
+    prim = [tc for tc in cands if tc[0] == float(r["threshold"])]
+    pick = prim[0] if prim else (min(cands, key=lambda tc: tc[0]) if cands else None)
+    if pick is None:
+      continue
+    thr, c = pick
+    lb = ", SBX did not reach it in every seed: lower bound" if c["speedup_is_lower_bound"] else ""
+    results_lib.update({f"sbx_speedup_{a}_reach": c["speedup_seconds"]},
+                       f"benchmarks/time_to_quality.py: median wall-clock incl. JIT compile, "
+                       f"threshold {thr} m, hdt {c['hdt_best']}{lb}",
+                       load=out["machine"].get("load_end"))
 
 
 def compare(res, thrs):
