@@ -1,0 +1,404 @@
+"""Time to quality: hdt vs SBX (stable-baselines-jax SAC) on the same LL reach task and threshold.
+
+    python benchmarks/time_to_quality.py [--agents point,arm3] [--seeds 3] [--quick]
+        [--hdt-configs NAME,...] [--skip-sbx] [--skip-hdt] [--sbx-max-minutes 25] [--out FILE]
+
+Task: ``hdt.envs.make(agent, "reach")`` (LL goal reaching). SBX trains on ``gym_reach.ReachGymEnv``,
+a one-env gymnasium port of the same task (same compiled MjModel, obs, reward, goal sampling and
+reset rules; checked step by step against hdt with ``--check``), stepping ``mujoco.MjData`` in
+numpy, as a reference user would. hdt trains with its own jitted, vmapped loop.
+
+Quality (the same code for both): the policy's deterministic action ``tanh(mean)`` is rolled out in
+hdt's env for ``--eval-episodes`` episodes of the LL horizon from fresh resets, with the SAME key
+every time (same start states and goals for every evaluation of every run), and the metric is the
+mean goal distance at the episode's last step. A run reaches quality at the first evaluation whose
+metric is below the agent's threshold; evaluations happen every ``eval_every`` env steps (per
+seed) for both, and their time is excluded from both clocks.
+
+Clock: starts before the agent is built (SBX: ``SAC(...)``; hdt: ``make_train`` + ``init``) and
+includes JIT compilation for both; hdt's compile time is also reported separately.
+
+SBX: the paper's hyper-parameters, one env, one gradient update per env step (SB3 defaults
+``train_freq=1, gradient_steps=1``, ``learning_starts=100``, ``ent_coef="auto"``).
+hdt: several parallel-env / updates-per-step / batch settings (``HDT_CONFIGS``); every seed runs
+on its own (seeds=[s]); the best setting is the one with the lowest median time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+
+from hdt.agents import networks as nets  # noqa: E402
+from hdt.agents.train import make_train, seed_keys, vmapped  # noqa: E402
+from hdt.envs import make  # noqa: E402
+from hdt.transfer import configs  # noqa: E402
+
+import results as results_lib  # noqa: E402
+
+# Per agent: threshold on the mean final goal distance (m), evaluation period (env steps per
+# seed), step cap, the paper's SBX hyper-parameters.
+TASKS = {
+    "point": dict(threshold=0.5, extra_thresholds=(0.2, 0.1), eval_every=256, max_steps=100_352,
+                  sbx=dict(net_arch=[64, 64], learning_rate=3e-4, batch_size=64, buffer_size=200_000)),
+    "arm3": dict(threshold=0.05, extra_thresholds=(0.1,), eval_every=2048, max_steps=401_408,
+                 sbx=dict(net_arch=[128, 96], learning_rate=3e-4, batch_size=100, buffer_size=250_000)),
+}
+QUICK = {"point": dict(threshold=1.5, extra_thresholds=(), eval_every=1024, max_steps=8192),
+         "arm3": dict(threshold=0.1, extra_thresholds=(), eval_every=4096, max_steps=16384)}
+
+# hdt settings to try: name -> SACConfig overrides on top of configs.low_config(agent). The paper's
+# network and learning rate stay; what changes is parallel envs, updates per step and batch.
+HDT_CONFIGS = {
+    "e8_u8_b64": dict(num_envs=8, updates_per_step=8, batch_size=64),  # UTD 1, the cpu preset
+    "e16_u4_b128": dict(num_envs=16, updates_per_step=4, batch_size=128),  # UTD 1/4
+    "e16_u4_b256": dict(num_envs=16, updates_per_step=4, batch_size=256),  # UTD 1/4
+    "e16_u2_b256": dict(num_envs=16, updates_per_step=2, batch_size=256),  # UTD 1/8
+}
+EVAL_KEY = 20260  # same evaluation episodes for every run
+
+
+def load():
+  return round(os.getloadavg()[0], 2)
+
+
+# ------------------------------------------------------------------------------------------------
+# The one evaluator both frameworks go through.
+
+
+def make_evaluator(env, policy_fn, episodes: int):
+  """jitted ``(params) -> mean final goal distance`` of ``policy_fn(params, obs) -> action``."""
+  v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+  keys = jax.random.split(jax.random.PRNGKey(EVAL_KEY), episodes)
+
+  def evaluate(params):
+    s0 = v_reset(keys)
+
+    def step(s, _):
+      s = v_step(s, policy_fn(params, s.obs))
+      return s, s.metrics["goal_dist"]
+
+    _, dist = jax.lax.scan(step, s0, None, length=env.horizon)
+    return jnp.mean(dist[-1])  # reach never ends early: the last step is the episode's last
+
+  return jax.jit(evaluate)
+
+
+def hdt_policy_fn(networks):
+  return lambda params, obs: nets.deterministic_action(networks.policy_apply(params, obs)[0])
+
+
+# ------------------------------------------------------------------------------------------------
+# hdt
+
+
+def first_crossings(curve, thresholds, offset=0.0):
+  """{threshold: {env_steps, seconds}} of the first evaluation below each threshold."""
+  out = {}
+  for thr in thresholds:
+    hit = next(((n, t) for n, t, m in curve if m < thr), None)
+    out[str(thr)] = None if hit is None else dict(env_steps=hit[0], seconds=hit[1],
+                                                  seconds_excl_startup=hit[1] - offset)
+  return out
+
+
+def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+  t0 = time.perf_counter()
+  env = make(agent, "reach")
+  n_envs = overrides["num_envs"]
+  cfg = configs.low_config(agent, total_env_steps=max_steps, steps_per_chunk=eval_every // n_envs,
+                           **overrides)
+  trainer = make_train(env, cfg)
+  fns = vmapped(trainer)
+  ts = jax.block_until_ready(fns.init(seed_keys([seed])))
+  t_init = time.perf_counter() - t0
+  tc = time.perf_counter()
+  chunk = fns.run_chunk.lower(ts).compile()
+  compile_s = time.perf_counter() - tc
+  evaluate = jax.vmap(make_evaluator(env, hdt_policy_fn(trainer.networks), episodes))
+  train_s = t_init + compile_s
+  curve, stop = [], min(thresholds)
+  while True:
+    tc = time.perf_counter()
+    ts, m = chunk(ts)
+    jax.block_until_ready(m)
+    train_s += time.perf_counter() - tc
+    steps = int(np.asarray(ts.env_steps)[0])
+    metric = float(np.asarray(evaluate(ts.agent.policy_params))[0])
+    curve.append((steps, train_s, metric))
+    log(f"    hdt {agent} seed {seed}: {steps:7d} steps {train_s:7.1f}s  dist {metric:.3f}")
+    if metric < stop:
+      break
+    if steps + cfg.env_steps_per_chunk > cfg.total_env_steps or train_s > max_seconds:
+      break
+  return dict(seed=seed, reached=first_crossings(curve, thresholds, t_init + compile_s), curve=curve,
+              compile_s=compile_s, init_s=t_init, startup_s=t_init + compile_s,
+              final_steps=curve[-1][0], final_seconds=curve[-1][1], final_metric=curve[-1][2],
+              load_end=load())
+
+
+# ------------------------------------------------------------------------------------------------
+# SBX
+
+
+def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+  from gym_reach import ReachGymEnv
+  from sbx import SAC
+  from stable_baselines3.common.callbacks import BaseCallback
+
+  env = make(agent, "reach")  # hdt env: the model for the gym port, and the evaluator's env
+  t0 = time.perf_counter()
+  genv = ReachGymEnv(env, seed=seed)
+  model = SAC("MlpPolicy", genv, learning_rate=hp["learning_rate"], batch_size=hp["batch_size"],
+              buffer_size=hp["buffer_size"], learning_starts=100, train_freq=1, gradient_steps=1,
+              policy_kwargs=dict(net_arch=list(hp["net_arch"])), seed=seed, verbose=0)
+  apply_fn = model.policy.actor_state.apply_fn
+  evaluate = make_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes)
+  state = dict(eval_s=0.0, curve=[])
+  stop = min(thresholds)
+
+  class Eval(BaseCallback):
+    def _on_step(self):
+      n = self.num_timesteps
+      if n % eval_every:
+        return True
+      te = time.perf_counter()
+      metric = float(evaluate(self.model.policy.actor_state.params))
+      now = time.perf_counter()
+      state["eval_s"] += now - te
+      t = now - t0 - state["eval_s"]
+      state["curve"].append((n, t, metric))
+      log(f"    sbx {agent} seed {seed}: {n:7d} steps {t:7.1f}s  dist {metric:.3f}")
+      if metric < stop:
+        return False
+      return t < max_seconds
+
+  model.learn(total_timesteps=max_steps, callback=Eval())
+  c = state["curve"]
+  return dict(seed=seed, reached=first_crossings(c, thresholds), curve=c, final_steps=c[-1][0] if c else 0,
+              final_seconds=c[-1][1] if c else 0.0, final_metric=c[-1][2] if c else None,
+              load_end=load())
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def summarize(runs, thr):
+  """Median time / steps to ``thr`` over seeds; unreached seeds count with their final time and
+  steps (so a median over them is a lower bound)."""
+  thr = str(thr)
+  hit = [r["reached"][thr] for r in runs]
+  secs = [h["seconds"] if h else r["final_seconds"] for h, r in zip(hit, runs)]
+  steps = [h["env_steps"] if h else r["final_steps"] for h, r in zip(hit, runs)]
+  n_reached = sum(h is not None for h in hit)
+  out = dict(median_seconds=float(np.median(secs)), median_env_steps=float(np.median(steps)),
+             seeds_reached=n_reached, seeds=len(runs), all_reached=n_reached == len(runs),
+             seconds=secs, env_steps=steps)
+  if runs and "startup_s" not in runs[0]:  # SBX: startup estimated from the curve (see below)
+    st = [sbx_startup_estimate(r["curve"]) for r in runs]
+    out["median_startup_est_s"] = float(np.median(st))
+    out["median_seconds_excl_startup_est"] = float(np.median([s - t for s, t in zip(secs, st)]))
+  if runs and "startup_s" in runs[0]:
+    out["median_compile_s"] = float(np.median([r["compile_s"] for r in runs]))
+    out["median_startup_s"] = float(np.median([r["startup_s"] for r in runs]))
+    out["median_seconds_excl_startup"] = float(np.median(
+        [s - r["startup_s"] for s, r in zip(secs, runs)]))
+  return out
+
+
+def sbx_startup_estimate(curve):
+  """SBX's time before steady state (build + JIT compile), estimated from its curve: the time of
+  the first evaluation minus its env steps at the steady-state rate between first and last."""
+  if len(curve) < 2:
+    return 0.0
+  (n0, t0, _), (n1, t1, _) = curve[0], curve[-1]
+  return max(0.0, t0 - n0 * (t1 - t0) / max(n1 - n0, 1))
+
+
+def check(agents):
+  """Step hdt's env and the gym port side by side with the same actions; print the max differences."""
+  from gym_reach import ReachGymEnv
+  for agent in agents:
+    e = make(agent, "reach")
+    s = jax.jit(e.reset)(jax.random.PRNGKey(3))
+    g = ReachGymEnv(e, seed=0)
+    g.set_state(np.asarray(s.physics.qpos, np.float64), np.asarray(s.physics.qvel, np.float64),
+                np.asarray(s.task["t"]["goal"]))
+    step, rng, od, rd = jax.jit(e.step), np.random.default_rng(0), 0.0, 0.0
+    for _ in range(40):
+      a = rng.uniform(-1, 1, e.action_size).astype(np.float32)
+      s = step(s, a)
+      o, r, *_ = g.step(a)
+      od = max(od, float(np.abs(o - np.asarray(s.next_obs)).max()))
+      rd = max(rd, abs(r - float(s.reward)))
+    print(f"{agent}: hdt vs gym port over 40 random steps: max |obs diff| {od:.2e}, max |reward diff| {rd:.2e}")
+
+
+def main():
+  ap = argparse.ArgumentParser()
+  ap.add_argument("--agents", default="point,arm3")
+  ap.add_argument("--seeds", type=int, default=3)
+  ap.add_argument("--hdt-configs", default=",".join(HDT_CONFIGS))
+  ap.add_argument("--skip-sbx", action="store_true")
+  ap.add_argument("--skip-hdt", action="store_true")
+  ap.add_argument("--sbx-max-minutes", type=float, default=25.0, help="per seed, net of evaluation")
+  ap.add_argument("--hdt-max-minutes", type=float, default=10.0, help="per seed, net of evaluation")
+  ap.add_argument("--eval-episodes", type=int, default=50)
+  ap.add_argument("--quick", action="store_true", help="low thresholds and caps, 1 seed, 1 hdt config")
+  ap.add_argument("--threshold", type=float, help="override the agent's threshold (m)")
+  ap.add_argument("--eval-every", type=int, help="override the evaluation period (env steps)")
+  ap.add_argument("--max-steps", type=int, help="override the env-step cap per seed")
+  ap.add_argument("--recompute", action="store_true",
+                  help="recompute the comparison and table from --out (no training)")
+  ap.add_argument("--check", action="store_true", help="only compare hdt's env and the gym port")
+  ap.add_argument("--out", default=os.path.join(HERE, "time_to_quality.json"))
+  ap.add_argument("--no-results", action="store_true", help="do not update benchmarks/results.json")
+  args = ap.parse_args()
+  agents = args.agents.split(",")
+  if args.check:
+    check(agents)
+    return
+  if args.recompute:
+    with open(args.out) as f:
+      out = json.load(f)
+    for r in out["agents"].values():
+      r["by_threshold"] = compare(r, r["thresholds"])
+    with open(args.out, "w") as f:
+      json.dump(out, f, indent=1)
+    print_table(out)
+    if not args.no_results:
+      update_results(out)
+    return
+  seeds = list(range(1 if args.quick else args.seeds))
+  hdt_names = args.hdt_configs.split(",")[:1] if args.quick else args.hdt_configs.split(",")
+
+  def log(msg):
+    print(msg, flush=True)
+
+  out = dict(machine=dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__,
+                          load_start=load()),
+             args=vars(args), agents={})
+  if os.path.exists(args.out) and not args.quick:  # keep other agents' rows from earlier runs
+    with open(args.out) as f:
+      prev = json.load(f)
+    out["agents"] = {k: v for k, v in prev.get("agents", {}).items() if k not in agents}
+
+  for agent in agents:
+    task = dict(TASKS[agent], **(QUICK[agent] if args.quick else {}))
+    for k in ("threshold", "eval_every", "max_steps"):
+      if getattr(args, k) is not None:
+        task[k] = getattr(args, k)
+    if args.threshold is not None:
+      task["extra_thresholds"] = ()
+    thr, every, cap = task["threshold"], task["eval_every"], task["max_steps"]
+    thrs = [thr, *task["extra_thresholds"]]
+    res = dict(threshold=thr, thresholds=thrs, eval_every=every, max_steps=cap,
+               eval_episodes=args.eval_episodes, sbx_hyper=task["sbx"], hdt={}, sbx=None)
+    log(f"== {agent} reach: quality = mean final goal distance < {thrs} m (load {load()})")
+    if not args.skip_hdt:
+      for name in hdt_names:
+        runs = [run_hdt(agent, HDT_CONFIGS[name], s, thrs, every, cap, 60 * args.hdt_max_minutes,
+                        args.eval_episodes, log) for s in seeds]
+        res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=runs)
+    if not args.skip_sbx:
+      runs = [run_sbx(agent, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
+                      args.eval_episodes, log) for s in seeds]
+      res["sbx"] = dict(runs=runs)
+    if os.path.exists(args.out) and (args.skip_sbx or args.skip_hdt):  # merge with the other half
+      with open(args.out) as f:
+        old = json.load(f).get("agents", {}).get(agent, {})
+      if args.skip_sbx and old.get("sbx"):
+        res["sbx"] = old["sbx"]
+      if args.skip_hdt:
+        res["hdt"] = old.get("hdt", {})
+    res["by_threshold"] = compare(res, thrs)
+    out["agents"][agent] = res
+    out["machine"]["load_end"] = load()
+    with open(args.out, "w") as f:
+      json.dump(out, f, indent=1)
+
+  print_table(out)
+  if not args.quick and not args.no_results:
+    update_results(out)
+
+
+def update_results(out):
+  """sbx_speedup_<agent>_reach: the wall-clock ratio at the primary threshold; if hdt did not reach
+  it in every seed, at the tightest threshold it did reach in every seed (the source says which)."""
+  for a, r in out["agents"].items():
+    cands = [(float(t), c) for t, c in r["by_threshold"].items()
+             if "speedup_seconds" in c and c["hdt_all_reached"]]
+    prim = [tc for tc in cands if tc[0] == float(r["threshold"])]
+    pick = prim[0] if prim else (min(cands, key=lambda tc: tc[0]) if cands else None)
+    if pick is None:
+      continue
+    thr, c = pick
+    lb = ", SBX did not reach it in every seed: lower bound" if c["speedup_is_lower_bound"] else ""
+    results_lib.update({f"sbx_speedup_{a}_reach": c["speedup_seconds"]},
+                       f"benchmarks/time_to_quality.py: median wall-clock incl. JIT compile, "
+                       f"threshold {thr} m, hdt {c['hdt_best']}{lb}",
+                       load=out["machine"].get("load_end"))
+
+
+def compare(res, thrs):
+  """Per threshold: each side's summary, the best hdt setting and the SBX / hdt ratios."""
+  out = {}
+  for thr in thrs:
+    c = dict(hdt={n: summarize(v["runs"], thr) for n, v in res["hdt"].items()},
+             sbx=summarize(res["sbx"]["runs"], thr) if res["sbx"] else None)
+    if c["hdt"]:
+      best = min(c["hdt"], key=lambda n: (not c["hdt"][n]["all_reached"], c["hdt"][n]["median_seconds"]))
+      c["hdt_best"] = best
+      if c["sbx"]:
+        h, s = c["hdt"][best], c["sbx"]
+        c["speedup_seconds"] = s["median_seconds"] / h["median_seconds"]
+        c["speedup_seconds_excl_hdt_startup"] = s["median_seconds"] / h["median_seconds_excl_startup"]
+        c["env_step_ratio"] = s["median_env_steps"] / h["median_env_steps"]
+        c["speedup_excl_startup_both"] = (s["median_seconds_excl_startup_est"]
+                                          / h["median_seconds_excl_startup"])
+        c["speedup_is_lower_bound"] = not s["all_reached"]
+        c["hdt_all_reached"] = h["all_reached"]
+    out[str(thr)] = c
+  return out
+
+
+def print_table(out):
+  print()
+  print(f"Time to quality, median over seeds (clock incl. JIT compile, excl. evaluation; ~ = estimated); "
+        f"load avg {out['machine']['load_start']} -> {out['machine'].get('load_end')}")
+  hdr = (f"{'agent':6s} {'thr (m)':>7s} {'who':24s} {'reached':>7s} {'env steps':>10s} {'seconds':>8s} "
+         f"{'startup s':>11s}")
+  print(hdr)
+  print("-" * len(hdr))
+  for agent, r in out["agents"].items():
+    for thr, c in r["by_threshold"].items():
+      rows = [(f"hdt {n}" + (" *" if n == c.get("hdt_best") else ""), v) for n, v in c["hdt"].items()]
+      if c.get("sbx"):
+        rows.append(("sbx (paper hp, 1 env)", c["sbx"]))
+      for who, s in rows:
+        comp = (f"{s['median_startup_s']:11.1f}" if "median_startup_s" in s
+                else f"{s['median_startup_est_s']:10.1f}~")
+        print(f"{agent:6s} {float(thr):7.3f} {who:24s} {s['seeds_reached']:>3d}/{s['seeds']:<3d} "
+              f"{s['median_env_steps']:10.0f} {s['median_seconds']:8.1f} {comp}")
+      if "speedup_seconds" in c:
+        lb = " (lower bound: SBX did not reach it in every seed)" if c["speedup_is_lower_bound"] else ""
+        bad = "" if c["hdt_all_reached"] else " (hdt did not reach it in every seed)"
+        print(f"  -> {agent} < {thr} m: hdt ({c['hdt_best']}) {c['speedup_seconds']:.2f}x faster "
+              f"wall-clock ({c['speedup_seconds_excl_hdt_startup']:.1f}x without hdt's init+compile, "
+              f"{c['speedup_excl_startup_both']:.1f}x without either's startup)"
+              f"{lb}{bad}; SBX used {c['env_step_ratio']:.2f}x hdt's env steps")
+
+
+if __name__ == "__main__":
+  main()
