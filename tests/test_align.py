@@ -144,7 +144,6 @@ def _energy_distance(x, y):
   return 2 * d(x, y) - d(x, x) - d(y, y)
 
 
-@pytest.mark.slow  # three LL trainings: about 8 min on the loaded shared 2-core machine
 def test_alignment_moves_b_taus_towards_a(tmp_path):
   """Issue 5: B = point mass with 3x actuator gear; its goal-space taus, aligned to A (the normal
   point mass, LL trained 3000 steps), are closer to A's than B's plain LL's taus, by energy distance
