@@ -28,7 +28,7 @@ PAPER = {"zero_shot": ".17", "finetune_kl": "fastest (≥ 2× plain finetune)", 
 PRESETS = {  # LL env steps by agent kind; HL steps of A's HL (high) and of each method (ft)
     "test": dict(low={"manip": 200}, high=64, ft=64, seeds=1, episodes=2, evals=1),  # tests only
     "smoke": dict(low={"manip": 1000}, high=200, ft=200, seeds=1, episodes=4, evals=2),
-    "cpu": dict(low={"manip": 60_000}, high=6000, ft=3000, seeds=2, episodes=50, evals=6),
+    "cpu": dict(low={"manip": 60_000}, high=6000, ft=3000, seeds=2, episodes=50, evals=5),  # = table1 runs
     "paper": dict(low={}, high=None, ft=None, seeds=5, episodes=100, evals=20, train_episodes=20),
 }
 
