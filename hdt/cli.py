@@ -501,7 +501,8 @@ def cmd_quickstart(args) -> int:
   high = train_high("waypoint", low.run_dir, configs.high_config("waypoint", 32, **pm), seeds=seeds,
                     out=root / "pm_high", quiet=quiet)
   ant = dict(total_env_steps=2000 if small else 30_000, num_envs=16, updates_per_step=2,
-             steps_per_chunk=25 if small else 125, batch_size=256)
+             steps_per_chunk=25 if small else 125, batch_size=256,
+             buffer_size=30_000)  # the whole run fits; the paper's 1M buffer is 290 MB
   ant_low = train_low("ant", configs.low_config("ant", **ant), seeds=seeds, out=root / "ant_low", quiet=quiet)
   episodes = 4 if small else 20
   rows = []
