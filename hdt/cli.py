@@ -285,9 +285,9 @@ def cmd_train(args) -> int:
                              **_resume_kw(pipeline.train_low, args, out), **overrides)
   elif args.level == "high":
     _check_agent_task(task=args.task)
-    k = args.k or ckpt.load_meta(args.low, args.low_seed)["k"]
-    cfg = _sac_config(args, "high", task=args.task, k=k)
-    out = _out_dir(args, f"high-{args.task}-{ckpt.load_meta(args.low)['agent']}")
+    low_meta = ckpt.load_meta(args.low, args.low_seed)
+    cfg = _sac_config(args, "high", task=args.task, k=args.k or low_meta["k"])
+    out = _out_dir(args, f"high-{args.task}-{low_meta['agent']}")
     res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
                               low_seed=args.low_seed, k=args.k, quiet=args.quiet,
                               **_resume_kw(pipeline.train_high, args, out), **overrides)
@@ -304,10 +304,10 @@ def cmd_align(args) -> int:
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer.align import align_low
   _check_agent_task(args.agent)
-  ckpt.load_meta(args.imitate)
+  imitate_meta = ckpt.load_meta(args.imitate)  # fails early, with the checkpoint's own message
   disc = DiscConfig(**_overrides(args, DiscConfig, "disc_"))
   cfg = _sac_config(args, "low", args.agent)
-  out = _out_dir(args, f"align-{args.agent}-to-{ckpt.load_meta(args.imitate)['agent']}")
+  out = _out_dir(args, f"align-{args.agent}-to-{imitate_meta['agent']}")
   res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
                   backend=args.backend, quiet=args.quiet, **_resume_kw(align_low, args, out),
                   **_key_values(args.set, "--set"))
@@ -328,7 +328,7 @@ def cmd_finetune(args) -> int:
   return _finish(res, args)
 
 
-def _named(items, what) -> dict[str, Path]:
+def _named(items) -> dict[str, Path]:
   out = {}
   for it in items:
     name, _, run = it.rpartition("=") if "=" in it else (Path(it).name, "", it)
@@ -346,7 +346,7 @@ def cmd_eval(args) -> int:
   out = args.out or Path("runs/eval")
   if args.episodes <= 0:
     raise CLIError(f"--episodes {args.episodes}: give a positive number of episodes")
-  highs, lows = _named(args.high, "--high"), _named(args.low, "--low")
+  highs, lows = _named(args.high), _named(args.low)
   if args.policy is not None:
     if highs or lows:
       raise CLIError("--policy evaluates a flat policy: do not combine it with --high/--low")
