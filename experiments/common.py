@@ -32,7 +32,7 @@ from typing import Any, Callable
 import numpy as np
 
 # Compiled XLA programs are cached across runs (as in tests/conftest.py): re-runs compile nothing.
-os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/hdt-jax"))
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/hdt/jax"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 
 from hdt.envs.agents import AGENTS

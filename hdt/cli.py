@@ -525,9 +525,11 @@ COMMANDS = {"train": cmd_train, "align": cmd_align, "finetune": cmd_finetune, "e
 def main(argv=None) -> int:
   from hdt.transfer.checkpoint import CheckpointError
   from hdt.agents.sharding import initialize_distributed
+  from hdt.cache import enable_compile_cache
   try:
     args = build_parser().parse_args(argv)
     initialize_distributed()  # no-op unless HDT_DISTRIBUTED=1 (one process per host)
+    enable_compile_cache()  # a re-run of the same configuration loads its programs
     return COMMANDS[args.cmd](args)
   except CLIError as e:
     print(f"error: {e}", file=sys.stderr)

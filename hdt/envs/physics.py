@@ -3,8 +3,10 @@
 Both map ``PhysicsState -> PhysicsState`` for ``frame_skip`` substeps with the control held, so an
 environment never knows which one it runs on. The state is backend-neutral (time, qpos, qvel and the
 sensor readings); the solver warm-start is not carried between environment steps by either backend,
-which keeps the two in step with each other. Native MuJoCo runs ``mujoco.rollout`` (multi-threaded C)
-behind ``jax.pure_callback`` with a batched ``vmap_method``, so it composes with jit, scan and vmap.
+which keeps the two in step with each other. Native MuJoCo runs as an XLA FFI custom call
+(``native_ffi.cc``, multi-threaded C, ``mujoco.rollout``'s semantics) with a batched ``vmap_method``, so
+it composes with jit, scan and vmap; where no C++ compiler is found it runs ``mujoco.rollout`` behind
+``jax.pure_callback`` instead (same results, slower, and never in JAX's persistent compile cache).
 Why two: on a CPU, contact-rich scenes under MJX run 100-200x slower than native MuJoCo (SPEC 7).
 """
 
@@ -20,6 +22,8 @@ import mujoco
 import numpy as np
 from flax import struct
 from mujoco import mjx, rollout
+
+from hdt.envs import native_ffi
 
 Backend = Literal["auto", "mjx", "native"]
 
@@ -66,11 +70,13 @@ class MJXPhysics:
 
 
 class NativePhysics:
-  """Native MuJoCo through ``mujoco.rollout`` inside ``jax.pure_callback`` (batched, multi-threaded)."""
+  """Native MuJoCo, batched and multi-threaded: the FFI custom call, or ``mujoco.rollout`` inside
+  ``jax.pure_callback`` when the custom call is unavailable or ``use_ffi=False``."""
 
   name = "native"
 
-  def __init__(self, model: mujoco.MjModel, frame_skip: int, nthread: int | None = None):
+  def __init__(self, model: mujoco.MjModel, frame_skip: int, nthread: int | None = None,
+               use_ffi: bool | None = None):
     self.mj_model = model
     self.frame_skip = frame_skip
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -82,6 +88,8 @@ class NativePhysics:
     self._nthread = nthread or min(os.cpu_count() or 1, 8)
     self._datas = [mujoco.MjData(model) for _ in range(self._nthread)]
     self._lock = threading.Lock()  # rollout's MjData are reused across calls
+    self.use_ffi = native_ffi.available() if use_ffi is None else use_ffi
+    self._model_id = native_ffi.register(model) if self.use_ffi else None
     self._out_shapes = (
         jax.ShapeDtypeStruct((), jnp.float32),
         jax.ShapeDtypeStruct((model.nq,), jnp.float32),
@@ -130,14 +138,29 @@ class NativePhysics:
     return self._unpack(state, sens, batch)
 
   def forward(self, time, qpos, qvel) -> PhysicsState:
-    out = jax.pure_callback(self._forward_host, self._shapes(jnp.shape(time)), time, qpos, qvel,
-                            vmap_method="broadcast_all")
+    shapes = self._shapes(jnp.shape(time))
+    if self.use_ffi:
+      out = jax.ffi.ffi_call(native_ffi.FORWARD_TARGET, shapes, vmap_method="broadcast_all")(
+          *_f32(time, qpos, qvel), model_id=np.int64(self._model_id))
+    else:
+      out = jax.pure_callback(self._forward_host, shapes, time, qpos, qvel,
+                              vmap_method="broadcast_all")
     return PhysicsState(*out, jnp.zeros_like(qvel))
 
   def step(self, ps: PhysicsState, ctrl: jax.Array) -> PhysicsState:
-    out = jax.pure_callback(self._step_host, self._shapes(jnp.shape(ps.time)), ps.time, ps.qpos,
-                            ps.qvel, ctrl, vmap_method="broadcast_all")
+    shapes = self._shapes(jnp.shape(ps.time))
+    if self.use_ffi:
+      out = jax.ffi.ffi_call(native_ffi.STEP_TARGET, shapes, vmap_method="broadcast_all")(
+          *_f32(ps.time, ps.qpos, ps.qvel, ctrl), model_id=np.int64(self._model_id),
+          frame_skip=np.int64(self.frame_skip))
+    else:
+      out = jax.pure_callback(self._step_host, shapes, ps.time, ps.qpos, ps.qvel, ctrl,
+                              vmap_method="broadcast_all")
     return PhysicsState(*out, ps.warmstart)
+
+
+def _f32(*xs):
+  return tuple(jnp.asarray(x, jnp.float32) for x in xs)
 
 
 def make_physics(model: mujoco.MjModel, frame_skip: int, backend: Backend = "auto"):

@@ -1,0 +1,217 @@
+// The native MuJoCo backend as an XLA FFI custom call (CPU).
+//
+// Same semantics as one mujoco.rollout call per env step (python/mujoco/rollout.cc): per env, set
+// (time, qpos, qvel), zero the solver warm-start and applied forces, hold ctrl for frame_skip
+// mj_step's (stop stepping on a MuJoCo warning), return the state and the last step's sensordata.
+// Why a custom call and not jax.pure_callback: no Python or numpy on the hot path, and programs
+// without host callbacks can be stored in JAX's persistent compilation cache.
+// Models are looked up by a content hash (an attribute of the call), so a cached program finds
+// its model in a new process once the same MJCF has been registered there.
+
+#include <mujoco/mujoco.h>
+
+#include <algorithm>
+#include <atomic>
+#include <condition_variable>
+#include <memory>
+#include <cstdint>
+#include <mutex>
+#include <unordered_map>
+#include <vector>
+
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+
+namespace {
+
+struct Entry {
+  const mjModel* model;
+  std::mutex mu;
+  std::vector<mjData*> free;  // reusable mjData: workspace only, every input is set per env
+};
+
+std::mutex registry_mu;
+std::unordered_map<int64_t, Entry*> registry;
+
+Entry* Find(int64_t id) {
+  std::lock_guard<std::mutex> lock(registry_mu);
+  auto it = registry.find(id);
+  return it == registry.end() ? nullptr : it->second;
+}
+
+mjData* Acquire(Entry* e) {
+  {
+    std::lock_guard<std::mutex> lock(e->mu);
+    if (!e->free.empty()) {
+      mjData* d = e->free.back();
+      e->free.pop_back();
+      return d;
+    }
+  }
+  return mj_makeData(e->model);
+}
+
+void Release(Entry* e, mjData* d) {
+  std::lock_guard<std::mutex> lock(e->mu);
+  e->free.push_back(d);
+}
+
+// Inputs that are not part of hdt's state are reset so that a result never depends on which
+// pooled mjData ran the env before.
+void SetState(const mjModel* m, mjData* d, float time, const float* qpos, const float* qvel) {
+  d->time = time;
+  for (int i = 0; i < m->nq; i++) d->qpos[i] = qpos[i];
+  for (int i = 0; i < m->nv; i++) d->qvel[i] = qvel[i];
+  mju_zero(d->qacc_warmstart, m->nv);
+  mju_zero(d->qfrc_applied, m->nv);
+  mju_zero(d->xfrc_applied, 6 * m->nbody);
+  for (int i = 0; i < mjNWARNING; i++) d->warning[i].number = 0;
+}
+
+void GetState(const mjModel* m, const mjData* d, float* time, float* qpos, float* qvel,
+              float* sens) {
+  *time = static_cast<float>(d->time);
+  for (int i = 0; i < m->nq; i++) qpos[i] = static_cast<float>(d->qpos[i]);
+  for (int i = 0; i < m->nv; i++) qvel[i] = static_cast<float>(d->qvel[i]);
+  for (int i = 0; i < m->nsensordata; i++) sens[i] = static_cast<float>(d->sensordata[i]);
+}
+
+bool Warned(const mjData* d) {
+  for (int i = 0; i < mjNWARNING; i++) {
+    if (d->warning[i].number) return true;
+  }
+  return false;
+}
+
+// Runs fn(d, i) for i in [0, n) on XLA's intra-op thread pool, each chunk with its own mjData.
+// Own threads would compete with XLA's (measured: slower than one thread on 2 cores). Chunks are
+// claimed from a counter by the caller and by the scheduled tasks alike, so the caller never waits
+// for a task the pool has not started (no deadlock when the pool is busy with other calls).
+struct Job {
+  std::atomic<int64_t> next{0}, done{0};
+  int64_t nchunk = 0;
+  std::mutex mu;
+  std::condition_variable cv;
+};
+
+template <typename Fn>
+void ParallelFor(Entry* e, int64_t n, ffi::ThreadPool* pool, Fn fn) {
+  int64_t nthread = pool ? std::max<int64_t>(1, pool->num_threads()) : 1;
+  auto job = std::make_shared<Job>();
+  job->nchunk = std::max<int64_t>(1, std::min(n, 2 * nthread));
+  auto run = [e, n, job, &fn]() {
+    for (int64_t c; (c = job->next.fetch_add(1)) < job->nchunk;) {
+      mjData* d = Acquire(e);
+      for (int64_t i = c * n / job->nchunk; i < (c + 1) * n / job->nchunk; i++) fn(d, i);
+      Release(e, d);
+      if (job->done.fetch_add(1) + 1 == job->nchunk) {
+        std::lock_guard<std::mutex> lock(job->mu);
+        job->cv.notify_all();
+      }
+    }
+  };
+  // Late tasks find no chunk left and return without touching fn (which lives on our stack).
+  for (int64_t w = 1; w < std::min(nthread, job->nchunk); w++) pool->Schedule(decltype(run)(run));
+  run();
+  std::unique_lock<std::mutex> lock(job->mu);
+  job->cv.wait(lock, [&] { return job->done.load() == job->nchunk; });
+}
+
+ffi::Error CheckSizes(const mjModel* m, size_t n, size_t nq, size_t nv, size_t ns) {
+  if (nq != n * m->nq || nv != n * m->nv || ns != n * m->nsensordata) {
+    return ffi::Error::InvalidArgument("hdt native physics: buffer sizes do not match the model");
+  }
+  return ffi::Error::Success();
+}
+
+ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip,
+                    ffi::Buffer<ffi::F32> time, ffi::Buffer<ffi::F32> qpos,
+                    ffi::Buffer<ffi::F32> qvel, ffi::Buffer<ffi::F32> ctrl,
+                    ffi::ResultBuffer<ffi::F32> time_out, ffi::ResultBuffer<ffi::F32> qpos_out,
+                    ffi::ResultBuffer<ffi::F32> qvel_out, ffi::ResultBuffer<ffi::F32> sens_out) {
+  Entry* e = Find(model_id);
+  if (!e) return ffi::Error::InvalidArgument("hdt native physics: model not registered");
+  const mjModel* m = e->model;
+  int64_t n = time.element_count();
+  ffi::Error err = CheckSizes(m, n, qpos.element_count(), qvel.element_count(),
+                              sens_out->element_count());
+  if (err.failure()) return err;
+  if (ctrl.element_count() != static_cast<size_t>(n * m->nu)) {
+    return ffi::Error::InvalidArgument("hdt native physics: ctrl size does not match the model");
+  }
+  const float *t_in = time.typed_data(), *qp = qpos.typed_data(), *qv = qvel.typed_data(),
+              *u = ctrl.typed_data();
+  float *t_out = time_out->typed_data(), *qp_out = qpos_out->typed_data(),
+        *qv_out = qvel_out->typed_data(), *s_out = sens_out->typed_data();
+  ParallelFor(e, n, &pool, [&](mjData* d, int64_t i) {
+    SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv);
+    for (int k = 0; k < m->nu; k++) d->ctrl[k] = u[i * m->nu + k];
+    for (int64_t s = 0; s < frame_skip && !Warned(d); s++) mj_step(m, d);
+    GetState(m, d, t_out + i, qp_out + i * m->nq, qv_out + i * m->nv,
+             s_out + i * m->nsensordata);
+  });
+  return ffi::Error::Success();
+}
+
+ffi::Error ForwardImpl(int64_t model_id, ffi::Buffer<ffi::F32> time, ffi::Buffer<ffi::F32> qpos,
+                       ffi::Buffer<ffi::F32> qvel, ffi::ResultBuffer<ffi::F32> time_out,
+                       ffi::ResultBuffer<ffi::F32> qpos_out, ffi::ResultBuffer<ffi::F32> qvel_out,
+                       ffi::ResultBuffer<ffi::F32> sens_out) {
+  Entry* e = Find(model_id);
+  if (!e) return ffi::Error::InvalidArgument("hdt native physics: model not registered");
+  const mjModel* m = e->model;
+  int64_t n = time.element_count();
+  ffi::Error err = CheckSizes(m, n, qpos.element_count(), qvel.element_count(),
+                              sens_out->element_count());
+  if (err.failure()) return err;
+  const float *t_in = time.typed_data(), *qp = qpos.typed_data(), *qv = qvel.typed_data();
+  float *t_out = time_out->typed_data(), *qp_out = qpos_out->typed_data(),
+        *qv_out = qvel_out->typed_data(), *s_out = sens_out->typed_data();
+  ParallelFor(e, n, nullptr, [&](mjData* d, int64_t i) {
+    SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv);
+    mju_zero(d->ctrl, m->nu);
+    mj_forward(m, d);
+    GetState(m, d, t_out + i, qp_out + i * m->nq, qv_out + i * m->nv,
+             s_out + i * m->nsensordata);
+  });
+  return ffi::Error::Success();
+}
+
+}  // namespace
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(HdtPhysicsStep, StepImpl,
+                              ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
+                                  .Attr<int64_t>("model_id")
+                                  .Attr<int64_t>("frame_skip")
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>());
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(HdtPhysicsForward, ForwardImpl,
+                              ffi::Ffi::Bind()
+                                  .Attr<int64_t>("model_id")
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>());
+
+// Registers a model under its content hash. The caller keeps the MjModel alive for the process.
+// Returns 1 if newly registered, 0 if the id was already known.
+extern "C" int HdtRegisterModel(int64_t model_id, const mjModel* model) {
+  std::lock_guard<std::mutex> lock(registry_mu);
+  if (registry.count(model_id)) return 0;
+  Entry* e = new Entry();
+  e->model = model;
+  registry[model_id] = e;
+  return 1;
+}
