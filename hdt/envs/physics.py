@@ -12,6 +12,7 @@ Why two: on a CPU, contact-rich scenes under MJX run 100-200x slower than native
 
 from __future__ import annotations
 
+import copy
 import os
 import threading
 from typing import Literal
@@ -45,15 +46,42 @@ def resolve_backend(backend: Backend) -> str:
   return backend
 
 
+# MJX-only solver settings, applied to a copy of the MjModel (native MuJoCo keeps the MJCF's).
+# Under vmap MJX's solver loop runs until the slowest env converges and its line search always runs
+# all ls_iterations (a scan of conds, i.e. selects), so MuJoCo's defaults (100 / 50) cost several
+# times what these scenes need: Newton with 4 / 6 runs ant, arm3 and quadruped 3-4x faster and
+# still passes tests/test_backends.py (benchmarks/mjx_options.py; BENCHMARKS.md, "MJX options").
+MJX_OPTIONS: dict = dict(iterations=4, ls_iterations=6, solver=None, disable=())
+
+
+def mjx_model_copy(model: mujoco.MjModel, options: dict | None = None) -> mujoco.MjModel:
+  """A copy of ``model`` with the MJX options (``MJX_OPTIONS`` updated by ``options``) applied:
+  ``iterations`` / ``ls_iterations`` (int), ``solver`` ("newton" or "cg"), ``disable`` (names of
+  mjtDisableBit flags without the prefix, e.g. "eulerdamp"); None keeps the model's value."""
+  opts = {**MJX_OPTIONS, **(options or {})}
+  if set(opts) - set(MJX_OPTIONS):
+    raise ValueError(f"unknown MJX option(s) {sorted(set(opts) - set(MJX_OPTIONS))}")
+  m = copy.copy(model)
+  if opts["iterations"] is not None:
+    m.opt.iterations = opts["iterations"]
+  if opts["ls_iterations"] is not None:
+    m.opt.ls_iterations = opts["ls_iterations"]
+  if opts["solver"] is not None:
+    m.opt.solver = {"newton": mujoco.mjtSolver.mjSOL_NEWTON, "cg": mujoco.mjtSolver.mjSOL_CG}[opts["solver"]]
+  for flag in opts["disable"]:
+    m.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, "mjDSBL_" + flag.upper()))
+  return m
+
+
 class MJXPhysics:
   """MJX (``impl='jax'``): pure JAX, the accelerator path."""
 
   name = "mjx"
 
-  def __init__(self, model: mujoco.MjModel, frame_skip: int):
+  def __init__(self, model: mujoco.MjModel, frame_skip: int, options: dict | None = None):
     self.mj_model = model
     self.frame_skip = frame_skip
-    self.model = mjx.put_model(model, impl="jax")
+    self.model = mjx.put_model(mjx_model_copy(model, options), impl="jax")
     self._data0 = mjx.make_data(self.model)
 
   def forward(self, time, qpos, qvel) -> PhysicsState:
