@@ -123,7 +123,6 @@ def first_crossings(curve, thresholds, offset=0.0):
 
 
 def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
-  hits0 = len(_cache_hits)
   t0 = time.perf_counter()
   env = make(agent, "reach")
   n_envs = overrides["num_envs"]
@@ -133,10 +132,10 @@ def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_secon
   fns = vmapped(trainer)
   ts = jax.block_until_ready(fns.init(seed_keys([seed])))
   t_init = time.perf_counter() - t0
-  tc = time.perf_counter()
+  tc, hits0 = time.perf_counter(), len(_cache_hits)
   chunk = fns.run_chunk.lower(ts).compile()
   compile_s = time.perf_counter() - tc
-  cache = "warm" if len(_cache_hits) > hits0 else "cold"  # init and chunk loaded, not compiled
+  cache = "warm" if len(_cache_hits) > hits0 else "cold"  # the training chunk loaded, not compiled
   log(f"    hdt {agent} seed {seed}: init {t_init:.1f}s, chunk compile {compile_s:.1f}s ({cache} cache)")
   evaluate = jax.vmap(make_evaluator(env, hdt_policy_fn(trainer.networks), episodes))
   train_s = t_init + compile_s
