@@ -112,11 +112,16 @@ def hdt_policy_fn(networks):
 # hdt
 
 
-def first_crossings(curve, thresholds, offset=0.0):
-  """{threshold: {env_steps, seconds}} of the first evaluation below each threshold."""
+def passes(metric, thr, higher=False):
+  """Quality reached: metric below thr (distances) or, with ``higher``, at or above it (returns)."""
+  return metric >= thr if higher else metric < thr
+
+
+def first_crossings(curve, thresholds, offset=0.0, higher=False):
+  """{threshold: {env_steps, seconds}} of the first evaluation past each threshold."""
   out = {}
   for thr in thresholds:
-    hit = next(((n, t) for n, t, m in curve if m < thr), None)
+    hit = next(((n, t) for n, t, m in curve if passes(m, thr, higher)), None)
     out[str(thr)] = None if hit is None else dict(env_steps=hit[0], seconds=hit[1],
                                                   seconds_excl_startup=hit[1] - offset)
   return out
@@ -125,9 +130,17 @@ def first_crossings(curve, thresholds, offset=0.0):
 def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
   t0 = time.perf_counter()
   env = make(agent, "reach")
-  n_envs = overrides["num_envs"]
-  cfg = configs.low_config(agent, total_env_steps=max_steps, steps_per_chunk=eval_every // n_envs,
-                           **overrides)
+  cfg = configs.low_config(agent, total_env_steps=max_steps,
+                           steps_per_chunk=eval_every // overrides["num_envs"], **overrides)
+  make_eval = lambda trainer: make_evaluator(env, hdt_policy_fn(trainer.networks), episodes)
+  return hdt_loop(f"hdt {agent}", env, cfg, seed, make_eval, thresholds, max_seconds, log, t0)
+
+
+def hdt_loop(label, env, cfg, seed, make_eval, thresholds, max_seconds, log, t0, higher=False,
+             metric_name="dist"):
+  """Trains hdt SAC on ``env`` with ``cfg`` (one seed) chunk by chunk, evaluating after each chunk
+  with ``make_eval(trainer)(policy_params) -> metric`` until the tightest threshold is passed, the
+  step cap or ``max_seconds`` (training clock, started at ``t0``, evaluation excluded)."""
   trainer = make_train(env, cfg)
   fns = vmapped(trainer)
   ts = jax.block_until_ready(fns.init(seed_keys([seed])))
@@ -136,10 +149,10 @@ def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_secon
   chunk = fns.run_chunk.lower(ts).compile()
   compile_s = time.perf_counter() - tc
   cache = "warm" if len(_cache_hits) > hits0 else "cold"  # the training chunk loaded, not compiled
-  log(f"    hdt {agent} seed {seed}: init {t_init:.1f}s, chunk compile {compile_s:.1f}s ({cache} cache)")
-  evaluate = jax.vmap(make_evaluator(env, hdt_policy_fn(trainer.networks), episodes))
+  log(f"    {label} seed {seed}: init {t_init:.1f}s, chunk compile {compile_s:.1f}s ({cache} cache)")
+  evaluate = jax.vmap(make_eval(trainer))
   train_s = t_init + compile_s
-  curve, stop = [], min(thresholds)
+  curve, stop = [], (max if higher else min)(thresholds)
   while True:
     tc = time.perf_counter()
     ts, m = chunk(ts)
@@ -148,15 +161,15 @@ def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_secon
     steps = int(np.asarray(ts.env_steps)[0])
     metric = float(np.asarray(evaluate(ts.agent.policy_params))[0])
     curve.append((steps, train_s, metric))
-    log(f"    hdt {agent} seed {seed}: {steps:7d} steps {train_s:7.1f}s  dist {metric:.3f}")
-    if metric < stop:
+    log(f"    {label} seed {seed}: {steps:7d} steps {train_s:7.1f}s  {metric_name} {metric:.3f}")
+    if passes(metric, stop, higher):
       break
     if steps + cfg.env_steps_per_chunk > cfg.total_env_steps or train_s > max_seconds:
       break
-  return dict(seed=seed, reached=first_crossings(curve, thresholds, t_init + compile_s), curve=curve,
-              compile_s=compile_s, init_s=t_init, startup_s=t_init + compile_s, compile_cache=cache,
-              final_steps=curve[-1][0], final_seconds=curve[-1][1], final_metric=curve[-1][2],
-              load_end=load())
+  return dict(seed=seed, reached=first_crossings(curve, thresholds, t_init + compile_s, higher),
+              curve=curve, compile_s=compile_s, init_s=t_init, startup_s=t_init + compile_s,
+              compile_cache=cache, final_steps=curve[-1][0], final_seconds=curve[-1][1],
+              final_metric=curve[-1][2], load_end=load())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -165,19 +178,29 @@ def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_secon
 
 def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
   from gym_reach import ReachGymEnv
-  from sbx import SAC
-  from stable_baselines3.common.callbacks import BaseCallback
 
   env = make(agent, "reach")  # hdt env: the model for the gym port, and the evaluator's env
   t0 = time.perf_counter()
-  genv = ReachGymEnv(env, seed=seed)
+  make_eval = lambda apply_fn: make_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes)
+  return sbx_loop(f"sbx {agent}", lambda: ReachGymEnv(env, seed=seed), hp, seed, make_eval, thresholds,
+                  eval_every, max_steps, max_seconds, log, t0)
+
+
+def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_steps, max_seconds,
+             log, t0, higher=False, metric_name="dist"):
+  """Trains SBX SAC (the paper's ``hp``, one env, one update per env step) on ``make_genv()``,
+  evaluating every ``eval_every`` env steps with ``make_eval(actor apply_fn)(params) -> metric``;
+  the training clock starts at ``t0`` and excludes evaluation."""
+  from sbx import SAC
+  from stable_baselines3.common.callbacks import BaseCallback
+
+  genv = make_genv()
   model = SAC("MlpPolicy", genv, learning_rate=hp["learning_rate"], batch_size=hp["batch_size"],
               buffer_size=hp["buffer_size"], learning_starts=100, train_freq=1, gradient_steps=1,
               policy_kwargs=dict(net_arch=list(hp["net_arch"])), seed=seed, verbose=0)
-  apply_fn = model.policy.actor_state.apply_fn
-  evaluate = make_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes)
+  evaluate = make_eval(model.policy.actor_state.apply_fn)
   state = dict(eval_s=0.0, curve=[])
-  stop = min(thresholds)
+  stop = (max if higher else min)(thresholds)
 
   class Eval(BaseCallback):
     def _on_step(self):
@@ -190,16 +213,16 @@ def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, epi
       state["eval_s"] += now - te
       t = now - t0 - state["eval_s"]
       state["curve"].append((n, t, metric))
-      log(f"    sbx {agent} seed {seed}: {n:7d} steps {t:7.1f}s  dist {metric:.3f}")
-      if metric < stop:
+      log(f"    {label} seed {seed}: {n:7d} steps {t:7.1f}s  {metric_name} {metric:.3f}")
+      if passes(metric, stop, higher):
         return False
       return t < max_seconds
 
   model.learn(total_timesteps=max_steps, callback=Eval())
   c = state["curve"]
-  return dict(seed=seed, reached=first_crossings(c, thresholds), curve=c, final_steps=c[-1][0] if c else 0,
-              final_seconds=c[-1][1] if c else 0.0, final_metric=c[-1][2] if c else None,
-              load_end=load())
+  return dict(seed=seed, reached=first_crossings(c, thresholds, higher=higher), curve=c,
+              final_steps=c[-1][0] if c else 0, final_seconds=c[-1][1] if c else 0.0,
+              final_metric=c[-1][2] if c else None, load_end=load())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -346,21 +369,25 @@ def main():
     update_results(out)
 
 
-def update_results(out):
-  """sbx_speedup_<agent>_reach: the wall-clock ratio at the primary threshold; if hdt did not reach
-  it in every seed, at the tightest threshold it did reach in every seed (the source says which)."""
+def update_results(out, source="benchmarks/time_to_quality.py"):
+  """sbx_speedup_<agent>_reach (or the row's ``results_key``): the wall-clock ratio at the primary
+  threshold; if hdt did not reach it in every seed, at the tightest threshold it did reach in every
+  seed (the source says which)."""
   for a, r in out["agents"].items():
+    higher = r.get("higher", False)
     cands = [(float(t), c) for t, c in r["by_threshold"].items()
              if "speedup_seconds" in c and c["hdt_all_reached"]]
     prim = [tc for tc in cands if tc[0] == float(r["threshold"])]
-    pick = prim[0] if prim else (min(cands, key=lambda tc: tc[0]) if cands else None)
+    tightest = max if higher else min
+    pick = prim[0] if prim else (tightest(cands, key=lambda tc: tc[0]) if cands else None)
     if pick is None:
       continue
     thr, c = pick
     lb = ", SBX did not reach it in every seed: lower bound" if c["speedup_is_lower_bound"] else ""
-    results_lib.update({f"sbx_speedup_{a}_reach": c["speedup_seconds"]},
-                       f"benchmarks/time_to_quality.py: median wall-clock incl. JIT compile, "
-                       f"threshold {thr} m, hdt {c['hdt_best']}{lb}",
+    results_lib.update({r.get("results_key", f"sbx_speedup_{a}_reach"): c["speedup_seconds"]},
+                       f"{source}: median wall-clock incl. JIT compile, "
+                       f"threshold {r['metric'] + ('>= ' if higher else '< ') if 'metric' in r else ''}"
+                       f"{thr:g}{r.get('unit', ' m')}, hdt {c['hdt_best']}{lb}",
                        load=out["machine"].get("load_end"))
 
 
@@ -390,11 +417,13 @@ def print_table(out):
   print()
   print(f"Time to quality, median over seeds (clock incl. JIT compile, excl. evaluation; ~ = estimated); "
         f"load avg {out['machine']['load_start']} -> {out['machine'].get('load_end')}")
-  hdr = (f"{'agent':6s} {'thr (m)':>7s} {'who':24s} {'reached':>7s} {'env steps':>10s} {'seconds':>8s} "
+  w = max([6, *map(len, out["agents"])])
+  hdr = (f"{'agent':{w}s} {'threshold':>9s} {'who':24s} {'reached':>7s} {'env steps':>10s} {'seconds':>8s} "
          f"{'startup s':>11s}")
   print(hdr)
   print("-" * len(hdr))
   for agent, r in out["agents"].items():
+    op, unit = (">=" if r.get("higher") else "<"), r.get("unit", " m")
     for thr, c in r["by_threshold"].items():
       rows = [(f"hdt {n}" + (" *" if n == c.get("hdt_best") else ""), v) for n, v in c["hdt"].items()]
       if c.get("sbx"):
@@ -402,12 +431,12 @@ def print_table(out):
       for who, s in rows:
         comp = (f"{s['median_startup_s']:11.1f}" if "median_startup_s" in s
                 else f"{s['median_startup_est_s']:10.1f}~")
-        print(f"{agent:6s} {float(thr):7.3f} {who:24s} {s['seeds_reached']:>3d}/{s['seeds']:<3d} "
+        print(f"{agent:{w}s} {float(thr):9.4g} {who:24s} {s['seeds_reached']:>3d}/{s['seeds']:<3d} "
               f"{s['median_env_steps']:10.0f} {s['median_seconds']:8.1f} {comp}")
       if "speedup_seconds" in c:
         lb = " (lower bound: SBX did not reach it in every seed)" if c["speedup_is_lower_bound"] else ""
         bad = "" if c["hdt_all_reached"] else " (hdt did not reach it in every seed)"
-        print(f"  -> {agent} < {thr} m: hdt ({c['hdt_best']}) {c['speedup_seconds']:.2f}x faster "
+        print(f"  -> {agent} {op} {thr}{unit}: hdt ({c['hdt_best']}) {c['speedup_seconds']:.2f}x faster "
               f"wall-clock ({c['speedup_seconds_excl_hdt_startup']:.1f}x without hdt's init+compile, "
               f"{c['speedup_excl_startup_both']:.1f}x without either's startup)"
               f"{lb}{bad}; SBX used {c['env_step_ratio']:.2f}x hdt's env steps")

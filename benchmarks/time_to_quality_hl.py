@@ -1,0 +1,344 @@
+"""Time to quality on a high level: hdt vs SBX on the PM Waypoint HL over the same frozen point-mass LL.
+
+    python benchmarks/time_to_quality_hl.py [--seeds 2] [--quick] [--check] [--low-run DIR]
+        [--hdt-configs NAME,...] [--skip-sbx] [--skip-hdt] [--sbx-max-minutes 3]
+        [--hdt-max-minutes 1.5] [--out FILE] [--compile-cache DIR] [--recompute]
+
+The third task of issue 8's time-to-quality item, next to the LL reach tasks of
+``benchmarks/time_to_quality.py``, whose helpers (training loops, first crossings, summaries, table,
+results.json update) it imports; the fairness rules are the same.
+
+Frozen LL: a point-mass LL trained once by ``hdt.train_low("point", ...)`` with the ``cpu`` preset's
+budget (20k env steps, 8 envs, one update per env step) into ``--low-run DIR`` and reused from there
+on later invocations (its training is in neither clock). Both learners train an HL over its seed-0
+policy.
+
+Task: ``hdt.transfer.pipeline.high_env("waypoint", DIR)``, hdt's HL env: one HL action is a relative
+sub-goal in [-1, 1]^2 (times delta_max = 4 m), one HL step is k = 32 LL steps of the frozen
+deterministic LL in a ``lax.scan`` and carries the summed Waypoint reward (-0.1 dist per LL step,
++100 per waypoint reached); an episode is 50 HL steps. The HL observes the task's HL features
+(``hl_features``: the waypoint relative to the agent). hdt trains on it with its own jitted, vmapped
+loop (``make_train``, as ``hdt.train_high`` does). SBX trains on ``make_gym_env(env)``: a one-env
+gymnasium wrapper of the SAME env object, ``jax.jit`` of its single-env ``reset`` / ``step``, numpy in
+and out, obs = the HL features hdt's SAC sees, reward = the summed task reward, terminated = hdt's
+``done`` with discount 0, truncated = ``done`` with discount 1 (the 50-step limit; SB3 bootstraps
+through it, as hdt's discount 1 does), and after an episode ``reset()`` continues from hdt's
+auto-reset state, as hdt's training envs do. There is no numpy port of an HL env a reference user
+would write instead (the frozen LL is a JAX policy), so SBX pays hdt's own jitted env cost per step
+(one dispatch and device-to-host copy per HL step) plus its own learning. ``--check`` steps hdt's
+vmapped env (the one its training loop uses) and the wrapper with the same actions over two episode
+boundaries and prints the largest differences of obs, reward and done flags.
+
+Quality (the same code for both): Waypoint defines no success, so the metric is the mean return of
+the deterministic policy ``tanh(mean)`` over ``--eval-episodes`` full HL episodes (50 HL steps,
+counted up to the first ``done``) from fresh resets with the SAME key for every evaluation of every
+run, in hdt's HL env. A run reaches quality at the first evaluation whose mean return is at or above
+the threshold. Thresholds: see ``TASK`` (how they were chosen is written there).
+
+Clock, caches, SBX and hdt settings: as in ``benchmarks/time_to_quality.py``. hdt's clock starts
+before the HL env is built (which loads the LL checkpoint) and includes init and the chunk compile;
+SBX's starts before the gym wrapper and ``SAC(...)`` are built and includes compiling the wrapper's
+jitted env reset / step (timed alone too: ``env_compile_s``, printed under the table; cold for the
+first seed, from the persistent cache for later ones, like hdt's chunk); the HL env object it wraps
+is built before SBX's clock starts (it is also the evaluator's env). SBX: the paper's HL
+hyper-parameters ([64,64], lr 3e-4, batch 64, buffer 50k), one env, one gradient update per env
+step, ``learning_starts=100``. hdt: ``HDT_CONFIGS`` below.
+Writes ``benchmarks/time_to_quality_hl.json`` and the results.json key
+``sbx_speedup_pm_waypoint_hl`` (skipped with ``--quick`` or ``--no-results``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+
+from hdt.cache import enable_compile_cache  # noqa: E402
+from hdt.transfer import configs  # noqa: E402
+from hdt.transfer import pipeline  # noqa: E402
+
+import time_to_quality as ttq  # noqa: E402
+
+NAME = "pm_waypoint_hl"
+HL_TASK = "waypoint"
+# The frozen LL: the cpu preset's point-mass LL (the one RESULTS.md's Waypoint row used).
+LOW_CONFIG = dict(total_env_steps=configs.CPU_LOW_STEPS["point"], num_envs=8, updates_per_step=8,
+                  steps_per_chunk=250, num_eval_episodes=16)
+# Thresholds on the mean evaluation return (higher is better), chosen from a pilot run (2026-11-22,
+# load ~3, seed 0, 32 eval episodes every 256 HL steps, over the 20k-step LL below): hdt e8_u8_b64
+# went -7184 (256 HL steps), -341, 305, 1072 (1,024), then stayed in 1,090-1,518 up to 8,192 (cf.
+# RESULTS.md's 1294 at 6,000); e16_u4_b128 crossed 500 at 2,816 and 1,000 at 3,328 and then stayed
+# in 1,098-1,375; SBX seeds 0 / 1 crossed 1,000 at 1,280 / 1,024. 1,000 (about 20 waypoints per
+# episode, ~80% of the plateau) is reached by every pilot run and held once reached; 1,200 or more
+# lies within the plateau's evaluation-to-evaluation swing, so a run can hover below it by chance.
+# The looser 500 marks learning well under way (the untrained HL scores about -7,000: it walks
+# away from the waypoints).
+TASK = dict(threshold=1000.0, extra_thresholds=(500.0,), eval_every=128, max_steps=12_288,
+            sbx=dict(net_arch=[64, 64], learning_rate=3e-4, batch_size=64, buffer_size=50_000))
+QUICK = dict(threshold=-1000.0, extra_thresholds=(), eval_every=128, max_steps=1024)
+# hdt settings: SACConfig overrides on top of configs.high_config (paper network, lr, batch 64).
+HDT_CONFIGS = {
+    "e8_u8_b64": dict(num_envs=8, updates_per_step=8, batch_size=64),  # UTD 1, the cpu preset
+    "e16_u4_b128": dict(num_envs=16, updates_per_step=4, batch_size=128),  # UTD 1/4
+}
+
+
+# ------------------------------------------------------------------------------------------------
+# The frozen LL and the HL env
+
+
+def ensure_low(low_dir: str, log) -> dict:
+  """Trains the point-mass LL into ``low_dir`` unless a finished run is there; returns its summary."""
+  if not os.path.exists(os.path.join(low_dir, "meta.json")):
+    log(f"== training the frozen point-mass LL into {low_dir} ({LOW_CONFIG['total_env_steps']} env steps)")
+    t = time.perf_counter()
+    pipeline.train_low("point", configs.low_config("point", **LOW_CONFIG), seeds=[0], out=low_dir,
+                       quiet=True)
+    log(f"   LL trained in {time.perf_counter() - t:.0f}s (in neither clock)")
+  with open(os.path.join(low_dir, "config.json")) as f:
+    cfg = json.load(f)
+  return dict(dir=os.path.abspath(low_dir), total_env_steps=cfg["total_env_steps"],
+              num_envs=cfg["num_envs"], updates_per_step=cfg["updates_per_step"])
+
+
+def hl_env(low_dir):
+  return pipeline.high_env(HL_TASK, low_dir)
+
+
+def make_hl_evaluator(env, policy_fn, episodes: int):
+  """jitted ``(params) -> mean episode return`` of ``policy_fn(params, obs) -> action`` over
+  ``episodes`` HL episodes from the fixed key ``ttq.EVAL_KEY``, each counted to its first done."""
+  v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+  keys = jax.random.split(jax.random.PRNGKey(ttq.EVAL_KEY), episodes)
+
+  def evaluate(params):
+    def step(c, _):
+      s, alive, ret = c
+      s = v_step(s, policy_fn(params, s.obs))
+      return (s, alive * (1.0 - s.done), ret + alive * s.reward), None
+
+    c0 = (v_reset(keys), jnp.ones((episodes,)), jnp.zeros((episodes,)))
+    (_, _, ret), _ = jax.lax.scan(step, c0, None, length=env.horizon)
+    return jnp.mean(ret)
+
+  return jax.jit(evaluate)
+
+
+def make_gym_env(env, seed: int | None = None):
+  """hdt's HL env ``env`` as a one-env gymnasium env ("HLGymEnv": jitted single-env reset / step,
+  numpy in and out; obs / reward / termination rules in the module docstring)."""
+  import gymnasium as gym
+
+  class _HLGymEnv(gym.Env):
+    metadata = {"render_modes": []}
+
+    def __init__(self):
+      self.hdt_env = env
+      self.observation_space = gym.spaces.Box(-np.inf, np.inf, (int(env.observation_size),), np.float32)
+      self.action_space = gym.spaces.Box(-1.0, 1.0, (int(env.action_size),), np.float32)
+
+      def step(s, a):
+        s = env.step(s, a)
+        return s, (s.next_obs, s.reward, s.done, s.discount, s.obs)
+
+      # Compiled ahead of time so that the compile (part of SBX's clock) is also reported alone.
+      t = time.perf_counter()
+      key = jax.random.PRNGKey(0)
+      self._reset = jax.jit(env.reset).lower(key).compile()
+      act = jax.ShapeDtypeStruct((int(env.action_size),), jnp.float32)
+      self._step = jax.jit(step).lower(jax.eval_shape(env.reset, key), act).compile()
+      self.compile_s = time.perf_counter() - t
+      self._state, self._after_done = None, None
+      if seed is not None:
+        self.reset(seed=seed)
+
+    def reset(self, *, seed=None, options=None):
+      super().reset(seed=seed)
+      if seed is not None or self._state is None:
+        key = jax.random.PRNGKey(int(self.np_random.integers(2**31)) if seed is None else seed)
+        self._state = self._reset(key)
+        self._after_done = None
+        return np.asarray(self._state.obs, np.float32), {}
+      obs = self._after_done  # hdt's auto-reset state after the finished episode
+      self._after_done = None
+      return obs, {}
+
+    def step(self, action):
+      self._state, out = self._step(self._state, jnp.asarray(action, jnp.float32))
+      next_obs, reward, done, discount, obs = jax.device_get(out)
+      done = bool(done > 0)
+      terminated = done and bool(discount == 0)
+      if done:
+        self._after_done = np.asarray(obs, np.float32)
+      return np.asarray(next_obs, np.float32), float(reward), terminated, done and not terminated, {}
+
+  return _HLGymEnv()
+
+
+# ------------------------------------------------------------------------------------------------
+# The two learners (training loops shared with the LL benchmark)
+
+
+def run_hdt(low_dir, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+  t0 = time.perf_counter()
+  env = hl_env(low_dir)
+  cfg = configs.high_config(HL_TASK, env.k, total_env_steps=max_steps,
+                            steps_per_chunk=eval_every // overrides["num_envs"], **overrides)
+  make_eval = lambda trainer: make_hl_evaluator(env, ttq.hdt_policy_fn(trainer.networks), episodes)
+  return ttq.hdt_loop("hdt HL", env, cfg, seed, make_eval, thresholds, max_seconds, log, t0,
+                      higher=True, metric_name="return")
+
+
+def run_sbx(low_dir, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+  env = hl_env(low_dir)  # evaluator's env; the gym wrapper (built inside the clock) wraps it too
+  t0 = time.perf_counter()
+  make_eval = lambda apply_fn: make_hl_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes)
+  genv = []
+  res = ttq.sbx_loop("sbx HL", lambda: genv.append(make_gym_env(env, seed=seed)) or genv[0], hp, seed,
+                     make_eval, thresholds, eval_every, max_steps, max_seconds, log, t0, higher=True,
+                     metric_name="return")
+  res["env_compile_s"] = genv[0].compile_s  # inside SBX's clock: hdt's HL env step, jitted for 1 env
+  log(f"    sbx HL seed {seed}: of which compiling the wrapped env's reset/step {genv[0].compile_s:.1f}s")
+  return res
+
+
+def check(low_dir, steps=120):
+  """hdt's vmapped HL env (as in training) vs the gym wrapper, same start and actions."""
+  env = hl_env(low_dir)
+  key = 3
+  v_reset, v_step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+  s = v_reset(jax.random.PRNGKey(key)[None])
+  g = make_gym_env(env)
+  o, _ = g.reset(seed=key)
+  od = float(np.abs(o - np.asarray(s.obs)[0]).max())
+  rd, flags, dones, rng = 0.0, 0, 0, np.random.default_rng(0)
+  for _ in range(steps):
+    a = rng.uniform(-1, 1, env.action_size).astype(np.float32)
+    s = v_step(s, jnp.asarray(a)[None])
+    o, r, term, trunc, _ = g.step(a)
+    od = max(od, float(np.abs(o - np.asarray(s.next_obs)[0]).max()))
+    rd = max(rd, abs(r - float(s.reward[0])))
+    done = bool(s.done[0] > 0)
+    flags += (term or trunc) != done or term != (done and float(s.discount[0]) == 0)
+    if term or trunc:
+      dones += 1
+      o, _ = g.reset()
+      od = max(od, float(np.abs(o - np.asarray(s.obs)[0]).max()))
+  print(f"{NAME}: hdt (vmapped) vs gym wrapper over {steps} random HL steps ({dones} episode ends): "
+        f"max |obs diff| {od:.2e}, max |reward diff| {rd:.2e}, done-flag mismatches {flags}")
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def main():
+  ap = argparse.ArgumentParser()
+  ap.add_argument("--seeds", type=int, default=2)
+  ap.add_argument("--hdt-configs", default=",".join(HDT_CONFIGS))
+  ap.add_argument("--skip-sbx", action="store_true")
+  ap.add_argument("--skip-hdt", action="store_true")
+  ap.add_argument("--sbx-max-minutes", type=float, default=3.0, help="per seed, net of evaluation")
+  ap.add_argument("--hdt-max-minutes", type=float, default=1.5, help="per seed, net of evaluation")
+  ap.add_argument("--eval-episodes", type=int, default=32)
+  ap.add_argument("--quick", action="store_true", help="low threshold and caps, 1 seed, 1 hdt config")
+  ap.add_argument("--threshold", type=float, help="override the threshold (mean return)")
+  ap.add_argument("--extra-thresholds", help="override the extra thresholds (comma-separated)")
+  ap.add_argument("--eval-every", type=int, help="override the evaluation period (HL env steps)")
+  ap.add_argument("--max-steps", type=int, help="override the HL env-step cap per seed")
+  ap.add_argument("--low-run", default=os.path.join(tempfile.gettempdir(), "hdt-ttq-hl", "low_point"),
+                  help="run dir of the frozen point-mass LL (trained there if missing)")
+  ap.add_argument("--recompute", action="store_true",
+                  help="recompute the comparison and table from --out (no training)")
+  ap.add_argument("--check", action="store_true", help="only compare hdt's HL env and the gym wrapper")
+  ap.add_argument("--out", help="JSON to write (default benchmarks/time_to_quality_hl.json; with "
+                  "--quick a temp file)")
+  ap.add_argument("--no-results", action="store_true", help="do not update benchmarks/results.json")
+  ap.add_argument("--compile-cache", help="JAX compilation cache dir (default: a fresh temp dir)")
+  args = ap.parse_args()
+
+  def log(msg):
+    print(msg, flush=True)
+
+  source = "benchmarks/time_to_quality_hl.py"
+  if args.out is None:
+    args.out = (os.path.join(tempfile.gettempdir(), "time_to_quality_hl_quick.json") if args.quick
+                else os.path.join(HERE, "time_to_quality_hl.json"))
+  if args.recompute:
+    with open(args.out) as f:
+      out = json.load(f)
+    for r in out["agents"].values():
+      r["by_threshold"] = ttq.compare(r, r["thresholds"])
+    with open(args.out, "w") as f:
+      json.dump(out, f, indent=1)
+    ttq.print_table(out)
+    if not args.no_results:
+      ttq.update_results(out, source)
+    return
+  args.compile_cache = str(enable_compile_cache(args.compile_cache or tempfile.mkdtemp(prefix="hdt-ttq-hl-")))
+  low = ensure_low(args.low_run, log)
+  if args.check:
+    check(args.low_run)
+    return
+
+  task = dict(TASK, **(QUICK if args.quick else {}))
+  for k in ("threshold", "eval_every", "max_steps"):
+    if getattr(args, k) is not None:
+      task[k] = getattr(args, k)
+  if args.extra_thresholds is not None:
+    task["extra_thresholds"] = tuple(float(t) for t in args.extra_thresholds.split(",") if t)
+  elif args.threshold is not None:
+    task["extra_thresholds"] = ()
+  thr, every, cap = task["threshold"], task["eval_every"], task["max_steps"]
+  thrs = [thr, *task["extra_thresholds"]]
+  seeds = list(range(1 if args.quick else args.seeds))
+  hdt_names = args.hdt_configs.split(",")[:1] if args.quick else args.hdt_configs.split(",")
+
+  out = dict(machine=dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__,
+                          load_start=ttq.load()), args=vars(args), low=low, agents={})
+  res = dict(threshold=thr, thresholds=thrs, eval_every=every, max_steps=cap,
+             eval_episodes=args.eval_episodes, sbx_hyper=task["sbx"], hdt={}, sbx=None,
+             higher=True, unit="", metric="mean eval return ", results_key=f"sbx_speedup_{NAME}")
+  log(f"== PM Waypoint HL over {low['dir']}: quality = mean eval return >= {thrs} (load {ttq.load()})")
+  if not args.skip_hdt:
+    for name in hdt_names:
+      runs = [run_hdt(args.low_run, HDT_CONFIGS[name], s, thrs, every, cap, 60 * args.hdt_max_minutes,
+                      args.eval_episodes, log) for s in seeds]
+      res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=runs)
+  if not args.skip_sbx:
+    runs = [run_sbx(args.low_run, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
+                    args.eval_episodes, log) for s in seeds]
+    res["sbx"] = dict(runs=runs)
+  if os.path.exists(args.out) and (args.skip_sbx or args.skip_hdt):  # merge with the other half
+    with open(args.out) as f:
+      old = json.load(f).get("agents", {}).get(NAME, {})
+    if args.skip_sbx and old.get("sbx"):
+      res["sbx"] = old["sbx"]
+    if args.skip_hdt:
+      res["hdt"] = old.get("hdt", {})
+  res["by_threshold"] = ttq.compare(res, thrs)
+  out["agents"][NAME] = res
+  out["machine"]["load_end"] = ttq.load()
+  with open(args.out, "w") as f:
+    json.dump(out, f, indent=1)
+  ttq.print_table(out)
+  if res["sbx"] and "env_compile_s" in res["sbx"]["runs"][0]:
+    env_c = ", ".join(f"{r['env_compile_s']:.1f}" for r in res["sbx"]["runs"])
+    print(f"  (SBX's times include compiling the wrapped hdt HL env's single-env reset/step: "
+          f"{env_c} s per seed)")
+  if not args.quick and not args.no_results:
+    ttq.update_results(out, source)
+
+
+if __name__ == "__main__":
+  main()
