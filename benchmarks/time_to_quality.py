@@ -279,17 +279,22 @@ def check(agents):
     print(f"{agent}: hdt vs gym port over 40 random steps: max |obs diff| {od:.2e}, max |reward diff| {rd:.2e}")
 
 
+def add_run_args(ap, *, hdt_configs, seeds, sbx_minutes, hdt_minutes, episodes):
+  """The options every time-to-quality benchmark shares (this one and time_to_quality_hl.py)."""
+  ap.add_argument("--seeds", type=int, default=seeds)
+  ap.add_argument("--hdt-configs", default=",".join(hdt_configs))
+  ap.add_argument("--skip-sbx", action="store_true")
+  ap.add_argument("--skip-hdt", action="store_true")
+  ap.add_argument("--sbx-max-minutes", type=float, default=sbx_minutes, help="per seed, net of evaluation")
+  ap.add_argument("--hdt-max-minutes", type=float, default=hdt_minutes, help="per seed, net of evaluation")
+  ap.add_argument("--eval-episodes", type=int, default=episodes)
+  ap.add_argument("--quick", action="store_true", help="low thresholds and caps, 1 seed, 1 hdt config")
+
+
 def main():
   ap = argparse.ArgumentParser()
   ap.add_argument("--agents", default="point,arm3")
-  ap.add_argument("--seeds", type=int, default=3)
-  ap.add_argument("--hdt-configs", default=",".join(HDT_CONFIGS))
-  ap.add_argument("--skip-sbx", action="store_true")
-  ap.add_argument("--skip-hdt", action="store_true")
-  ap.add_argument("--sbx-max-minutes", type=float, default=25.0, help="per seed, net of evaluation")
-  ap.add_argument("--hdt-max-minutes", type=float, default=10.0, help="per seed, net of evaluation")
-  ap.add_argument("--eval-episodes", type=int, default=50)
-  ap.add_argument("--quick", action="store_true", help="low thresholds and caps, 1 seed, 1 hdt config")
+  add_run_args(ap, hdt_configs=HDT_CONFIGS, seeds=3, sbx_minutes=25.0, hdt_minutes=10.0, episodes=50)
   ap.add_argument("--threshold", type=float, help="override the agent's threshold (m)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (env steps)")
   ap.add_argument("--max-steps", type=int, help="override the env-step cap per seed")

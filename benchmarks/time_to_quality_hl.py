@@ -244,14 +244,7 @@ def check(low_dir, steps=120):
 
 def main():
   ap = argparse.ArgumentParser()
-  ap.add_argument("--seeds", type=int, default=2)
-  ap.add_argument("--hdt-configs", default=",".join(HDT_CONFIGS))
-  ap.add_argument("--skip-sbx", action="store_true")
-  ap.add_argument("--skip-hdt", action="store_true")
-  ap.add_argument("--sbx-max-minutes", type=float, default=3.0, help="per seed, net of evaluation")
-  ap.add_argument("--hdt-max-minutes", type=float, default=1.5, help="per seed, net of evaluation")
-  ap.add_argument("--eval-episodes", type=int, default=32)
-  ap.add_argument("--quick", action="store_true", help="low threshold and caps, 1 seed, 1 hdt config")
+  ttq.add_run_args(ap, hdt_configs=HDT_CONFIGS, seeds=2, sbx_minutes=3.0, hdt_minutes=1.5, episodes=32)
   ap.add_argument("--threshold", type=float, help="override the threshold (mean return)")
   ap.add_argument("--extra-thresholds", help="override the extra thresholds (comma-separated)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (HL env steps)")
