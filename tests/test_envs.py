@@ -79,7 +79,8 @@ def test_hl_rewards_by_hand():
   r, _, t2, _ = Waypoint().reward(key, pm, q([0, 0]), q([0, 0]), jnp.zeros(2), t, 0.06)
   assert np.isclose(r, -0.5) and np.allclose(t2["waypoint"], [3, 4])
   r, _, t2, m = Waypoint().reward(key, pm, q([0, 0]), q([3.0, 3.7]), jnp.zeros(2), t, 0.06)
-  assert np.isclose(r, 100 - 0.03, atol=1e-4) and m["waypoints"] == 1.0
+  # point_mass.py PointMassMJ.high_level_reward: exactly 100 when reached (no distance term)
+  assert np.isclose(r, 100.0) and m["waypoints"] == 1.0
   assert not np.allclose(t2["waypoint"], [3, 4])  # a new waypoint appeared
   maze = Maze(goal="end")
   t = maze.sample(key, pm, q([0, 0]))
@@ -95,7 +96,7 @@ def test_hl_rewards_by_hand():
   assert np.isclose(r, -0.1) and not solved
   r, solved, *_ = push.reward(key, arm, q([0, 0]), q([0, 0], block=[-0.11, -0.08], block_vel=[0, 0]),
                               jnp.zeros(3), {}, 0.03)
-  assert np.isclose(r, 200 - 0.01, atol=1e-5) and solved
+  assert np.isclose(r, 200.0) and solved  # reacher.py Reacher.high_level_reward
   r, solved, *_ = Insert().reward(key, arm, q([0, 0]), q([0.01, -0.2], tip=[0, 0]), jnp.zeros(3), {}, 0.03)
   assert solved and np.isclose(r, 50 - 20 * (0.01 ** 2 + 0.01 ** 2), atol=1e-5)
 
@@ -151,7 +152,7 @@ def test_block_reaches_destination():
   s = env.reset(jax.random.PRNGKey(0))
   qpos = np.array(s.physics.qpos)
   names = [env.mj_model.joint(j).name for j in range(env.mj_model.njnt)]
-  qpos[env.mj_model.jnt_qposadr[names.index("block/block_x")]] = -0.21  # block x: 0.12 -> -0.09
+  qpos[env.mj_model.jnt_qposadr[names.index("block/block_x")]] = -0.09  # qpos is world x (joint ref)
   s = jax.jit(env.step)(_with_qpos(env, s, qpos), jnp.zeros(3))
   assert s.metrics["success"] == 1.0 and s.done == 1.0 and s.reward > 199
 
@@ -159,8 +160,8 @@ def test_block_reaches_destination():
 def test_peg_inserted():
   env = E.make("arm_point", "insert")
   s = env.reset(jax.random.PRNGKey(0))
-  # arm_point's body sits at (0.1, 0): slide to (-0.05, -0.205) puts the peg tip at (0, -0.205).
-  s = jax.jit(env.step)(_with_qpos(env, s, [-0.15, -0.205]), jnp.zeros(2))
+  # arm_point's slide qpos is its world position (joint ref): the peg tip is 0.05 m further in x.
+  s = jax.jit(env.step)(_with_qpos(env, s, [-0.05, -0.205]), jnp.zeros(2))
   assert s.metrics["success"] == 1.0 and s.done == 1.0
   s2 = env.reset(jax.random.PRNGKey(0))
   assert jax.jit(env.step)(s2, jnp.zeros(2)).metrics["success"] == 0.0

@@ -37,18 +37,14 @@ class AgentTaskEnv:
 
     # Agent degrees of freedom and sensors, found by the prefix the composition gave them.
     joints = [j for j in range(m.njnt) if m.joint(j).name.startswith(AGENT_PREFIX)]
-    qpos_idx, qvel_idx, noise = [], [], []
+    qpos_idx, qvel_idx, movable = [], [], []
     for j in joints:
       nq = {0: 7, 1: 4, 2: 1, 3: 1}[int(m.jnt_type[j])]
       nv = {0: 6, 1: 3, 2: 1, 3: 1}[int(m.jnt_type[j])]
       qpos_idx += range(m.jnt_qposadr[j], m.jnt_qposadr[j] + nq)
       qvel_idx += range(m.jnt_dofadr[j], m.jnt_dofadr[j] + nv)
-      noise += [0.0] * nq if m.jnt_type[j] in (0, 1) else [1.0]  # no noise on free/ball joints
+      movable += [m.jnt_qposadr[j]] if m.jnt_type[j] in (2, 3) else []  # no noise on free/ball joints
     self._qpos_idx, self._qvel_idx = np.array(qpos_idx), np.array(qvel_idx)
-    self._qpos_noise = np.zeros(m.nq, np.float32)
-    self._qpos_noise[self._qpos_idx] = noise
-    self._qvel_noise = np.zeros(m.nv, np.float32)
-    self._qvel_noise[self._qvel_idx] = 1.0
     # Start inside the joint limits (the Gym ant's ankles rest outside theirs at qpos0, which makes
     # the first landing violent and chaotic).
     self._qpos_lo = np.full(m.nq, -np.inf, np.float32)
@@ -57,6 +53,24 @@ class AgentTaskEnv:
       if m.jnt_limited[j] and m.jnt_type[j] in (2, 3):
         self._qpos_lo[m.jnt_qposadr[j]], self._qpos_hi[m.jnt_qposadr[j]] = m.jnt_range[j]
     self._qpos0 = np.clip(np.array(m.qpos0, np.float32), self._qpos_lo, self._qpos_hi)
+    # Episode starts (redrawn every episode): uniform qpos noise on the agent's hinge/slide joints and
+    # qvel noise on its dofs; the LL reach task has its own distribution (AgentSpec.ll_qpos_*).
+    self._start = {}
+    for low in (False, True):
+      half = np.zeros(m.nq, np.float32)
+      half[movable] = agent.init_noise
+      offset = np.zeros(m.nq, np.float32)
+      if low and agent.ll_qpos_noise:
+        if len(agent.ll_qpos_noise) != len(movable):
+          raise ValueError(f"{agent.name}: ll_qpos_noise has {len(agent.ll_qpos_noise)} entries for "
+                           f"{len(movable)} hinge/slide joints")
+        half[movable] = agent.ll_qpos_noise
+      if low and agent.ll_qpos_offset:
+        offset[np.array(qpos_idx)[:len(agent.ll_qpos_offset)]] = agent.ll_qpos_offset
+      self._start[low] = (half, offset)
+    self._qvel_noise = np.zeros(m.nv, np.float32)
+    self._qvel_noise[self._qvel_idx] = agent.init_vel_noise
+    self._low = task.low_level
 
     def sensor(name):
       i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)
@@ -100,13 +114,21 @@ class AgentTaskEnv:
     return (q["z"] < lo) | (q["z"] > hi)
 
   # -- reset / step ------------------------------------------------------------------------------
-  def reset(self, key: jax.Array) -> State:
-    key, k_pos, k_vel, k_task = jax.random.split(key, 4)
-    n = self.agent.init_noise
-    qpos = self._qpos0 + self._qpos_noise * jax.random.uniform(k_pos, self._qpos0.shape, minval=-n, maxval=n)
+  def initial_physics(self, key: jax.Array) -> PhysicsState:
+    """A fresh episode start: qpos0 (+ the LL offset) with uniform noise, clipped to the joint limits."""
+    k_pos, k_vel = jax.random.split(key)
+    half, offset = self._start[self._low]
+    qpos = self._qpos0 + offset + half * jax.random.uniform(k_pos, half.shape, minval=-1.0, maxval=1.0)
     qpos = jnp.clip(qpos, self._qpos_lo, self._qpos_hi)
-    qvel = self._qvel_noise * n * jax.random.normal(k_vel, self._qvel_noise.shape)
-    ps = self.physics.forward(jnp.float32(0.0), qpos, qvel)
+    if self.agent.legged:
+      qvel = self._qvel_noise * jax.random.normal(k_vel, self._qvel_noise.shape)
+    else:
+      qvel = self._qvel_noise * jax.random.uniform(k_vel, self._qvel_noise.shape, minval=-1.0, maxval=1.0)
+    return self.physics.forward(jnp.float32(0.0), qpos, qvel)
+
+  def reset(self, key: jax.Array) -> State:
+    key, k_phys, k_task = jax.random.split(key, 3)
+    ps = self.initial_physics(k_phys)
     q = self.quantities(ps)
     t = self.task.sample(k_task, self.agent, q)
     lo, hi, obs = self._observe(ps, q, t)
@@ -115,43 +137,51 @@ class AgentTaskEnv:
     metrics = {k: jnp.zeros_like(v, jnp.float32) for k, v in metrics.items()} | {"fall": zero}
     return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=obs, next_obs_hi=hi,
                  reward=zero, done=zero,
-                 discount=jnp.float32(1.0), task={"t": t, "steps": jnp.int32(0), "init": ps},
+                 discount=jnp.float32(1.0), task={"t": t, "steps": jnp.int32(0), "kept": jnp.int32(0),
+                       "solved": jnp.bool_(False)},
                  metrics=metrics, key=key)
 
-  def restart(self, state: State, key: jax.Array, where=True) -> State:
-    """Start a new episode from the cached initial physics with fresh task randomness, where
-    ``where`` holds (wrappers that own the time limit use this instead of a full reset)."""
-    ps = _where(where, state.task["init"], state.physics)
-    q = self.quantities(ps)
-    t = _where(where, self.task.sample(key, self.agent, q), state.task["t"])
-    lo, hi, obs = self._observe(ps, q, t)
-    return state.replace(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo,
-                         task=dict(state.task, t=t, steps=jnp.where(where, 0, state.task["steps"])))
-
-  def step(self, state: State, action: jax.Array) -> State:
-    key, k_task, k_reset, k_new = jax.random.split(state.key, 4)
+  def ctrl(self, action: jax.Array) -> jax.Array:
+    """Actuator controls of a policy action in [-1, 1] (SB2's SAC rescales to the ctrl range too)."""
     action = jnp.clip(action, -1.0, 1.0)
-    ctrl = self._ctrl_lo + (action + 1.0) * 0.5 * (self._ctrl_hi - self._ctrl_lo)
+    return self._ctrl_lo + (action + 1.0) * 0.5 * (self._ctrl_hi - self._ctrl_lo)
+
+  def step(self, state: State, action: jax.Array, auto_reset: bool = True) -> State:
+    """One step. ``auto_reset=False`` (the HL env, which owns episodes) never ends an episode on the
+    task or the time limit and never resets; ``done`` then only flags a fall."""
+    key, k_task, k_reset, k_new, k_phys = jax.random.split(state.key, 5)
+    ctrl = self.ctrl(action)
     ps = self.physics.step(state.physics, ctrl)
     q_prev, q = self.quantities(state.physics), self.quantities(ps)
-    reward, solved, t, metrics = self.task.reward(k_task, self.agent, q_prev, q, action,
+    # The control cost is on the raw controls, as the authors' low_level_step.
+    reward, solved, t, metrics = self.task.reward(k_task, self.agent, q_prev, q, ctrl,
                                                   state.task["t"], self.dt)
     fell = self.fell(q)
+    metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()} | {"fall": fell.astype(jnp.float32)}
     steps = state.task["steps"] + 1
+    _, next_hi, next_obs = self._observe(ps, q, t)
+    if not auto_reset:
+      lo, hi = self.obs_lo(ps), next_hi
+      return State(physics=ps, obs=next_obs, obs_hi=hi, obs_lo=lo, next_obs=next_obs, next_obs_hi=next_hi,
+                   reward=jnp.asarray(reward, jnp.float32), done=fell.astype(jnp.float32),
+                   discount=1.0 - fell.astype(jnp.float32),
+                   task=dict(state.task, t=t, steps=steps, solved=solved), metrics=metrics, key=key)
     terminal = fell | solved
     timeout = steps >= self.horizon
     done = terminal | timeout
-    _, next_hi, next_obs = self._observe(ps, q, t)
 
-    # Auto-reset: a new episode starts from the cached initial physics or from where the robot is.
-    reset_physics = done & self.task.physics_reset(k_reset, self.agent, fell, timeout)
-    ps = _where(reset_physics, state.task["init"], ps)
+    # Auto-reset: a new episode starts from a fresh draw or, for the LL reach task, from where the
+    # robot is unless it fell, a reset_prob coin says so or max_ll_episodes went by without a reset
+    # (the authors' Hierarchical.reset).
+    forced = state.task["kept"] >= self.agent.max_ll_episodes
+    reset_physics = done & (self.task.physics_reset(k_reset, self.agent, fell, timeout) | forced)
+    kept = jnp.where(done, jnp.where(reset_physics, 0, state.task["kept"] + 1), state.task["kept"])
+    ps = _where(reset_physics, self.initial_physics(k_phys), ps)
     q = self.quantities(ps)
     t = _where(done, self.task.sample(k_new, self.agent, q), t)
     lo, hi, obs = self._observe(ps, q, t)
-    metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()} | {"fall": fell.astype(jnp.float32)}
     return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=next_obs, next_obs_hi=next_hi,
                  reward=jnp.asarray(reward, jnp.float32), done=done.astype(jnp.float32),
                  discount=1.0 - terminal.astype(jnp.float32),
-                 task={"t": t, "steps": jnp.where(done, 0, steps), "init": state.task["init"]},
+                 task={"t": t, "steps": jnp.where(done, 0, steps), "kept": kept, "solved": solved},
                  metrics=metrics, key=key)

@@ -24,8 +24,14 @@ class AgentSpec:
   contact_clip: float = 10.0  # touch readings (N) are scaled by 1/contact_clip and clipped to [0, 1]
   ctrl_cost: float = 0.5  # lambda of the LL action penalty
   survive_bonus: float = 0.0  # legged LL reward per step while not fallen
-  reach_eps: float = 0.5  # LL goal counted as reached within this distance (m)
-  init_noise: float = 0.1  # uniform qpos / normal qvel noise at reset
+  reach_eps: float = 0.27  # epsilon_low: LL goal reached within this distance (m); ends an HL step early
+  init_noise: float = 0.1  # uniform qpos noise of an episode start, redrawn every episode
+  init_vel_noise: float = 0.1  # qvel noise of an episode start (normal for legged agents, else uniform)
+  # LL (reach) starts: per agent-qpos uniform half-widths (empty: init_noise) around qpos0 + offset.
+  # The authors' arms start their LL episodes at random joint angles, their point mass at (0, 0).
+  ll_qpos_noise: tuple[float, ...] = ()
+  ll_qpos_offset: tuple[float, ...] = ()
+  max_ll_episodes: int = 10  # an LL episode resets the physics after this many that did not
   success_bonus: float = 0.0  # manip LL: c in c * 1{|g - tip| < eps}
   gear_scale: float = 1.0  # multiplies every actuator gear: a variant of a morphology (alignment tests)
 

@@ -30,6 +30,12 @@ class Task:
   # HL input stays morphology-independent. Defaults: obs_hi unchanged.
   hl_relative: tuple[int, ...] = ()
   hl_absolute: bool = True
+  # One HL step (the authors' Hierarchical.high_level_step): the LL runs until the goal-space point is
+  # within epsilon of the sub-goal (the agent's reach_eps unless ``hl_eps`` is set) or k steps went
+  # by; the HL reward is the task reward at the end minus ``skill_penalty * |z|`` (z in metres).
+  skill_penalty: float = 0.05
+  hl_eps: float | None = None
+  low_level: bool = False  # the LL reach task (its own episode starts, AgentSpec.ll_qpos_*)
 
   # -- scene -------------------------------------------------------------------------------------
   def scene(self, agent: AgentSpec) -> str:
@@ -73,6 +79,11 @@ class Task:
     """The flat observation SAC sees on this task (the Full baseline: both levels)."""
     return jnp.concatenate([obs_lo, obs_hi])
 
+  def hl_reward(self, rewards: jax.Array, metrics: dict, last: jax.Array) -> jax.Array:
+    """Task reward of an HL step from its per-LL-step rewards and metrics (``last`` indexes the
+    last LL step taken): the reward at the end (high_level_reward called once, after the LL loop)."""
+    return rewards[last]
+
   def reward(self, key, agent: AgentSpec, q_prev: Quantities, q: Quantities, action, t, dt):
     """Returns (reward, solved (terminal), task state, metrics)."""
     raise NotImplementedError
@@ -83,6 +94,7 @@ class Reach(Task):
   """LL goal reaching: a relative goal z in the agent's goal box (SPEC 3)."""
 
   name: str = "reach"
+  low_level: bool = True
   terrain: str = "plane"  # "steps": random low barriers and 16 rangefinders (the Steps LL)
 
   def __post_init__(self):
@@ -103,7 +115,7 @@ class Reach(Task):
 
   def sample(self, key, agent, q):
     z = jax.random.uniform(key, (2,), minval=-agent.delta_max, maxval=agent.delta_max)
-    return {"goal": q["point"] + z}
+    return {"goal": q["point"] + z, "z": z}
 
   def physics_reset(self, key, agent, fell, timeout):
     return fell | (jax.random.uniform(key) < agent.reset_prob)
@@ -115,6 +127,7 @@ class Reach(Task):
     return jnp.concatenate([obs_lo, t["goal"] - obs_hi[:2]])
 
   def reward(self, key, agent, q_prev, q, action, t, dt):
+    # ``action`` is the raw control (Hierarchical.low_level_step's action_penalty * sum(a^2)).
     ctrl_cost = agent.ctrl_cost * jnp.sum(jnp.square(action))
     dist = jnp.linalg.norm(t["goal"] - q["point"])
     if agent.family == "nav":
@@ -142,13 +155,20 @@ class Waypoint(Task):
   hl_horizon: int = 50
   radius: float = 8.0
   reach_dist: float = 0.5
+  bonus: float = 100.0
   # The HL sees the waypoint relative to the agent, not both absolute positions: measured at 6k HL
   # steps (2 seeds), absolute inputs -243 / 73, relative 1475 / 1551 (see hdt.transfer.hierarchy).
   hl_relative: tuple[int, ...] = (2,)
   hl_absolute: bool = False
+  skill_penalty: float = 0.25  # point_mass.py PointMassLargeMJ, ant.py Ant
 
   def sample(self, key, agent, q):
     return {"waypoint": _disc(key, self.radius)}
+
+  def hl_reward(self, rewards, metrics, last):
+    # PointMassMJ.post_action flags a reached waypoint on any LL step; high_level_reward then pays
+    # 100 once for the HL step, else -0.1 * the distance at its end.
+    return jnp.where(jnp.any(metrics["waypoints"] > 0), self.bonus, rewards[last])
 
   def obs_hi(self, q, t):
     return jnp.concatenate([q["point"], t["waypoint"]])
@@ -157,7 +177,7 @@ class Waypoint(Task):
     dist = jnp.linalg.norm(t["waypoint"] - q["point"])
     hit = dist < self.reach_dist
     t = {"waypoint": jnp.where(hit, _disc(key, self.radius), t["waypoint"])}
-    return -0.1 * dist + 100.0 * hit, jnp.bool_(False), t, {"waypoints": hit.astype(jnp.float32), "dist": dist}
+    return jnp.where(hit, self.bonus, -0.1 * dist), jnp.bool_(False), t, {"waypoints": hit.astype(jnp.float32), "dist": dist}
 
 
 # U-maze path cells (row, col) from the start r to the end g of SPEC 3's layout.
@@ -175,6 +195,7 @@ class Maze(Task):
   goal: str = "sample"  # "sample": any of the six cells past the start; "end": the end cell
   bonus: float = 1000.0
   scene_file: str = "maze.xml"
+  skill_penalty: float = 0.005  # maze.py PointMaze / AntMaze
 
   def __post_init__(self):
     if self.goal not in ("sample", "end"):
@@ -234,7 +255,8 @@ class Push(Task):
   def reward(self, key, agent, q_prev, q, action, t, dt):
     dist = jnp.linalg.norm(q["block"] - jnp.asarray(self.destination))
     solved = dist < self.tolerance
-    return -dist + self.bonus * solved, solved, t, {"success": solved.astype(jnp.float32), "dist": dist}
+    # reacher.py Reacher.high_level_reward: 200 within epsilon_high, else -distance.
+    return jnp.where(solved, self.bonus, -dist), solved, t, {"success": solved.astype(jnp.float32), "dist": dist}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -247,6 +269,7 @@ class Insert(Task):
   point_sensor: str = "peg/peg_tip"
   objects: tuple = (("slot_wall.xml", "slot/"),)
   tools: tuple = (("peg.xml", "peg/"),)
+  hl_eps: float | None = 0.015  # insert.py Insert: epsilon_low
   target: tuple[float, float] = (0.0, -0.19)
 
   def obs_hi(self, q, t):

@@ -17,10 +17,14 @@ _LOW = {
     "manip": dict(total_env_steps=1_200_000, actor_lr=3e-4, batch_size=100, hidden_sizes=(128, 96),
                   buffer_size=250_000),
 }
-# High level: [64,64], lr 3e-4, batch 64, buffer 50k; LL-equivalent steps per task.
+# High level: [64,64], lr 3e-4, batch 64, buffer 50k. Budgets are HL decisions (the paper's HL
+# "Timesteps": SB2's SAC takes one env.step per timestep, and one step of the authors' HighLevelEnv is
+# one sub-goal; utils/trainer.py, utils/loader.py).
 _HIGH = dict(actor_lr=3e-4, batch_size=64, hidden_sizes=(64, 64), buffer_size=50_000)
-HIGH_LL_STEPS = {"waypoint": 200_000, "maze": 400_000, "steps": 400_000, "push1": 500_000,
-                 "push2": 500_000, "insert": 500_000}
+HIGH_DECISIONS = {"waypoint": 200_000, "maze": 400_000, "steps": 400_000, "push1": 500_000,
+                  "push2": 500_000, "insert": 500_000}
+# The Full baseline takes one torque per env step, so its budget is in LL env steps (paper table).
+FULL_STEPS = HIGH_DECISIONS
 
 
 def _lrs(d):
@@ -43,14 +47,20 @@ def low_config(agent: str, **overrides) -> SACConfig:
   return _fit(_lrs(dict(base)) | overrides)
 
 
-def high_config(task: str, k: int, **overrides) -> SACConfig:
-  base = dict(_HIGH, total_env_steps=max(1, HIGH_LL_STEPS.get(task, 200_000) // k))
+def high_config(task: str, k: int | None = None, **overrides) -> SACConfig:
+  """HL SAC config; ``total_env_steps`` counts HL decisions (``k`` is accepted for old callers and
+  does not change the budget)."""
+  if task not in HIGH_DECISIONS:
+    raise ValueError(f"no HL budget for task {task!r}; tasks with one: {', '.join(HIGH_DECISIONS)}")
+  base = dict(_HIGH, total_env_steps=HIGH_DECISIONS[task])
   return _fit(_lrs(base) | overrides)
 
 
 def full_config(agent: str, task: str, **overrides) -> SACConfig:
   """Flat SAC on the task with the agent's torques: the agent's LL network, the task's budget."""
-  return low_config(agent, **(dict(total_env_steps=HIGH_LL_STEPS.get(task, 200_000)) | overrides))
+  if task not in FULL_STEPS:
+    raise ValueError(f"no Full budget for task {task!r}; tasks with one: {', '.join(FULL_STEPS)}")
+  return low_config(agent, **(dict(total_env_steps=FULL_STEPS[task]) | overrides))
 
 
 def replace(cfg: SACConfig, **kw) -> SACConfig:

@@ -1,22 +1,16 @@
 """The high level as an environment: a task plus a frozen low level (DESIGN: "HL env").
 
 One HL action is a relative sub-goal z in [-1, 1]^2, scaled to the agent's goal box (``delta_max``):
-``g = skill(obs_hi) + delta_max * z``. The frozen LL then acts deterministically for up to k steps in a
-``lax.scan`` (stopping early on a fall or a solved task, and with ``early_stop=True`` also on a
-reached sub-goal) and the HL transition carries the summed task reward. Sub-goal early stopping is
-off by default: with a horizon counted in HL steps and a per-LL-step penalty (Waypoint's -0.1 dist),
-an HL learns to emit sub-goals it has already reached, so that each HL step lasts one LL step and
-collects almost no penalty (measured: return stuck near 0 instead of learning to reach waypoints). The LL parameters live in the state, so every seed of a vmapped sweep
-can drive its own LL.
+``g = skill(obs_hi) + delta_max * z``. One HL step is the authors' ``Hierarchical.high_level_step``
+(bot_transfer/envs/hierarchical.py): the frozen LL acts deterministically in a ``lax.scan`` of at most k
+steps and stops once the goal-space point is within epsilon of g (``early_stop``) or the robot fell;
+the HL reward is the task's reward at the end of the step (``Task.hl_reward``) minus
+``skill_penalty * |delta_max * z|``, and the task is judged solved on the state at the end of the step.
+The LL parameters live in the state, so every seed of a vmapped sweep can drive its own LL.
 
 The HL policy observes ``task.hl_features(obs_hi)`` (``state.obs`` / ``next_obs``), while ``obs_hi``
-keeps the raw global observation the sub-goals are built from. Tasks may express goal-space positions
-relative to the agent's point (Waypoint sees only ``waypoint - xy``): with both absolute positions as
-inputs, HL SAC on Waypoint reached -243 / 73 after 6k HL steps (two seeds; obs scaled by 1/8: -293 / -97;
-running mean/std normaliser: -567 / -71; absolute xy plus the relative vector: -684 / -103), with the
-relative vector alone 1565 / 1305 (a hand-written HL over the same LL: 1656). Early policies walk
-hundreds of metres off (first evaluation about -21000), and a critic that sees absolute coordinates
-has to fit those far-away returns instead of the translation-invariant structure of the task.
+keeps the raw global observation the sub-goals are built from. Waypoint's HL sees the waypoint relative
+to the agent (a departure from the authors, who feed both absolute positions; SPEC.md, Departures).
 """
 
 from __future__ import annotations
@@ -48,8 +42,8 @@ class HighLevelEnv:
   """Wraps an agent-task environment whose LL acts on sub-goals. Owns the HL time limit."""
 
   def __init__(self, env: AgentTaskEnv, low_policy: LowPolicy, low_params: Any, k: int | None = None,
-               hl_horizon: int | None = None, early_stop: bool = False, record: bool = False,
-               delta_max: float | None = None):
+               hl_horizon: int | None = None, early_stop: bool = True, record: bool = False,
+               delta_max: float | None = None, eps: float | None = None):
     self.env = env
     self.low_policy = low_policy
     self.low_params = low_params
@@ -67,6 +61,9 @@ class HighLevelEnv:
       raise ValueError(f"delta_max (half-width of the sub-goal box) must be positive, got "
                        f"{self.delta_max}; e.g. the agent's default {env.agent.delta_max}")
     self.early_stop = early_stop
+    # epsilon_low of the authors' env: the task's (Insert 0.015) or the agent's (manip 0.01, nav 0.27)
+    self.eps = float(eps if eps is not None else env.task.hl_eps if env.task.hl_eps is not None
+                     else env.agent.reach_eps)
     self.record = record
     self.action_size = 2
     self.features = env.task.hl_features  # obs_hi -> what the HL policy observes
@@ -99,45 +96,49 @@ class HighLevelEnv:
   def step(self, state: State, action: jax.Array) -> State:
     inner0 = state.physics
     low = state.task["low"]
-    goal = skill(inner0.obs_hi) + self.delta_max * jnp.clip(action, -1.0, 1.0)
-    eps = self.env.agent.reach_eps
+    task = self.env.task
+    z = self.delta_max * jnp.clip(action, -1.0, 1.0)
+    goal = skill(inner0.obs_hi) + z
 
-    def ll_step(carry, _):
-      inner, active, ret, last_hi, ended, terminal = carry
+    def ll_step(carry, i):
+      inner, active, last = carry
       a = self.low_policy(low, ll_observation(inner.obs_lo, inner.obs_hi, goal))
-      nxt = self.env.step(inner, a)
+      nxt = self.env.step(inner, a, auto_reset=False)
       # Once stopped, the inner state is frozen (the step above is discarded).
       inner = jax.tree.map(lambda n, o: jnp.where(active, n, o), nxt, inner)
-      ret = ret + jnp.where(active, nxt.reward, 0.0)
-      last_hi = jnp.where(active, nxt.next_obs_hi, last_hi)
-      ended = ended | (active & (nxt.done > 0))
-      terminal = terminal | (active & (nxt.discount == 0))
-      reached = jnp.linalg.norm(skill(nxt.next_obs_hi) - goal) < eps
+      reached = jnp.linalg.norm(skill(nxt.obs_hi) - goal) < self.eps
       out = {k: jnp.where(active, v, 0.0) for k, v in nxt.metrics.items()}
+      out["reward"] = jnp.where(active, nxt.reward, 0.0)
       out["active"] = active.astype(jnp.float32)
       if self.record:
-        out["xy"] = skill(nxt.next_obs_hi)
-        out["block"] = nxt.next_obs_hi[2:4] if nxt.next_obs_hi.shape[-1] >= 4 else jnp.zeros(2)
-      still = active & (nxt.done == 0)
+        out["xy"] = skill(nxt.obs_hi)
+        out["block"] = nxt.obs_hi[2:4] if nxt.obs_hi.shape[-1] >= 4 else jnp.zeros(2)
+      last = jnp.where(active, i, last)
+      still = active & (nxt.done == 0)  # the inner env's done flags a fall only
       if self.early_stop:
         still = still & ~reached
-      return (inner, still, ret, last_hi, ended, terminal), out
+      return (inner, still, last), out
 
-    carry0 = (inner0, jnp.bool_(True), jnp.float32(0.0), inner0.obs_hi, jnp.bool_(False), jnp.bool_(False))
-    (inner, _, ret, last_hi, ended, terminal), per = jax.lax.scan(ll_step, carry0, None, length=self.k)
+    carry0 = (inner0, jnp.bool_(True), jnp.int32(0))
+    (inner, _, last), per = jax.lax.scan(ll_step, carry0, jnp.arange(self.k))
 
+    reward = task.hl_reward(per["reward"], per, last) - task.skill_penalty * jnp.linalg.norm(z)
+    fell = jnp.max(per["fall"]) > 0
+    terminal = fell | inner.task["solved"]
     steps = state.task["steps"] + 1
-    timeout = steps >= self.horizon
-    done = ended | timeout
-    key, k_restart = jax.random.split(state.key)
-    # The inner env auto-resets after its own terminal; the HL time limit restarts it here.
-    inner = self.env.restart(inner, k_restart, where=timeout & ~ended)
-    metrics = {k: _REDUCE.get(k, lambda x: jnp.sum(x * per["active"]) / jnp.maximum(per["active"].sum(), 1))(v)
-               for k, v in per.items() if k not in ("active", "xy", "block")}
-    metrics["ll_steps"] = per["active"].sum()
-    metrics["sub_goal_dist"] = jnp.linalg.norm(skill(last_hi) - goal)
+    done = terminal | (steps >= self.horizon)
+    key, k_reset = jax.random.split(state.key)
+    next_hi = inner.obs_hi
+    inner = jax.tree.map(lambda n, o: jnp.where(done, n, o), self.env.reset(k_reset), inner)
+    active = per["active"]
+    metrics = {k: _REDUCE.get(k, lambda x: jnp.sum(x * active) / jnp.maximum(active.sum(), 1))(v)
+               for k, v in per.items() if k not in ("active", "xy", "block", "reward")}
+    if "success" in per:
+      metrics["success"] = per["success"][last]  # judged at the end of the HL step
+    metrics["ll_steps"] = active.sum()
+    metrics["sub_goal_dist"] = jnp.linalg.norm(skill(next_hi) - goal)
     if self.record:
-      metrics |= {"xy": per["xy"], "block": per["block"], "active": per["active"], "goal": goal}
-    return self._wrap(inner, low, next_obs=last_hi, reward=ret, done=done.astype(jnp.float32),
+      metrics |= {"xy": per["xy"], "block": per["block"], "active": active, "goal": goal}
+    return self._wrap(inner, low, next_obs=next_hi, reward=reward, done=done.astype(jnp.float32),
                       discount=1.0 - terminal.astype(jnp.float32), steps=jnp.where(done, 0, steps),
                       metrics=metrics, key=key)
