@@ -35,9 +35,11 @@ def build_model(agent: AgentSpec, task: Task) -> mujoco.MjModel:
     scene.attach(mujoco.MjSpec.from_file(str(XML_DIR / "scenes" / xml)), prefix=prefix,
                  frame=scene.worldbody.add_frame())
   scene.attach(agent_spec, prefix=AGENT_PREFIX, frame=scene.worldbody.add_frame())
+  # Tools (the peg) mount at the agent's optional ``tool_mount`` site, else at its goal point.
+  mount = next((s for s in scene.sites if s.name == AGENT_PREFIX + "tool_mount"), None)
   for xml, prefix in task.tools:
     scene.attach(mujoco.MjSpec.from_file(str(XML_DIR / "scenes" / xml)), prefix=prefix,
-                 site=scene.site(AGENT_PREFIX + "goal_point"))
+                 site=mount or scene.site(AGENT_PREFIX + "goal_point"))
   if task.rangefinders and agent.legged:
     _add_rangefinders(scene, task.rangefinders)
   task.customize(scene)

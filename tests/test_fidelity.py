@@ -1,0 +1,162 @@
+"""hdt against the authors' code (bot_transfer/): scenes, starts, actuators, the HL step, and
+solvability of every HL task by scripted controllers (tests/scripted.py)."""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import scripted as S
+from hdt import envs as E
+from hdt.envs.tasks import Push
+from hdt.transfer.hierarchy import HighLevelEnv
+
+
+def _starts(env, n=64, seed=0):
+  return jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(seed), n))
+
+
+def test_arm_point_starts_beyond_the_block_with_fresh_noise():
+  # reacher.py ReacherPM.reset: HL episodes start at (0.2, 0) +- 0.05, the block at (0.12, -0.08).
+  env = E.make("arm_point", "push1", hl_horizon=1)
+  s = _starts(env)
+  tip, block = np.asarray(s.obs_hi[:, :2]), np.asarray(s.obs_hi[:, 2:4])
+  assert np.all(np.abs(tip - [0.2, 0.0]) <= 0.05 + 1e-6) and tip[:, 0].std() > 0.02
+  np.testing.assert_allclose(block, np.tile([0.12, -0.08], (len(block), 1)), atol=1e-6)
+  assert np.all(tip[:, 0] > block[:, 0] + 0.02)  # the fingertip centre is past the block's far edge
+  # A new episode draws a new start (no replayed fixed starts).
+  one = jax.tree.map(lambda x: x[0], s)
+  step = jax.jit(env.step)
+  for _ in range(env.horizon):
+    one = step(one, jnp.zeros(2))
+  assert one.task["steps"] == 0 and not np.allclose(one.obs_hi[:2], tip[0], atol=1e-4)
+  # LL episodes start at (0, 0) +- 0.05 (qpos[0] -= 0.2).
+  ll = np.asarray(_starts(E.make("arm_point", "reach")).obs_hi[:, :2])
+  assert np.all(np.abs(ll) <= 0.05 + 1e-6)
+
+
+@pytest.mark.parametrize("agent,limit", [("arm2", 3.0), ("arm3", 2.7), ("arm4", 2.0)])
+def test_arm_ll_starts_at_random_joint_angles(agent, limit):
+  # reacher.py Reacher.reset_func(low=True): joint0 in +-pi, the others in +-RAND_LIMITS.
+  q = np.asarray(_starts(E.make(agent, "reach"), n=256).physics.qpos)
+  assert q[:, 0].min() < -2.5 and q[:, 0].max() > 2.5
+  assert np.abs(q[:, 1:]).max() <= limit + 1e-6 and np.abs(q[:, 1:]).max() > 0.8 * limit
+  # HL episodes: +-0.1 around qpos0.
+  q = np.asarray(_starts(E.make(agent, "push1"), n=64).physics.qpos)
+  arm = q[:, 2:]  # after the block's two slides
+  assert np.abs(arm).max() <= 0.1 + 1e-6 and np.abs(arm).max() > 0.05
+
+
+def test_ll_forces_a_physics_reset_after_ten_kept_episodes():
+  # hierarchical.py Hierarchical.reset: max_sequential_low = 10.
+  env = E.make("arm3", "reach", reset_prob=0.0, ll_horizon=2)
+  s = env.reset(jax.random.PRNGKey(0))
+  step = jax.jit(env.step)
+  kept = []
+  for _ in range(2 * 12):
+    s = step(s, jnp.zeros(3))
+    kept.append(int(s.task["kept"]))
+  assert max(kept) == 10 and kept[-1] < 10 and 0 in kept[4:]
+
+
+@pytest.mark.parametrize("agent", ["arm2", "arm3", "arm4"])
+def test_arm_motor_force_limits(agent):
+  # reacher_push*.xml: gear 100, ctrl +-0.5, forcelimited forcerange +-0.1: at most 10 N m.
+  m = E.make(agent, "push1").mj_model
+  np.testing.assert_allclose(m.actuator_gear[:, 0], 100.0)
+  np.testing.assert_allclose(m.actuator_forcerange, np.tile([-0.1, 0.1], (m.nu, 1)))
+  assert np.all(m.actuator_forcelimited == 1)
+  d = mujoco.MjData(m)
+  d.ctrl[:] = m.actuator_ctrlrange[:, 1]
+  mujoco.mj_forward(m, d)
+  assert np.abs(d.qfrc_actuator).max() == pytest.approx(10.0, rel=1e-6)
+
+
+def test_arm_point_dynamics():
+  # reacher_pm.xml: r 0.015 sphere (0.0141 kg), gear 10, ctrl +-0.7, damping 1: about 0.76 m/s at full ctrl.
+  env = E.make("arm_point", "reach")
+  m = env.mj_model
+  tip = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "agent/root")
+  assert m.body_mass[tip] == pytest.approx(4 / 3 * np.pi * 0.015 ** 3 * 1000, rel=1e-4)
+  np.testing.assert_allclose(m.actuator_gear[:, 0], 10.0)
+  np.testing.assert_allclose(m.actuator_ctrlrange, np.tile([-0.7, 0.7], (2, 1)))
+  s = env.reset(jax.random.PRNGKey(0))
+  step = jax.jit(lambda s: env.step(s, jnp.array([1.0, 0.0]), auto_reset=False))
+  for _ in range(8):
+    s = step(s)
+  assert float(s.physics.qvel[0]) == pytest.approx(0.76, abs=0.03)
+
+
+def test_control_cost_is_on_raw_controls():
+  # Hierarchical.low_level_step: action_penalty * sum(a^2) with a the raw ctrl (ctrl +-0.5 for arms).
+  env = E.make("arm3", "reach")
+  s = env.reset(jax.random.PRNGKey(0))
+  s0 = jax.jit(lambda s, a: env.step(s, a, auto_reset=False))
+  n1, n0 = s0(s, jnp.ones(3)), s0(s, jnp.zeros(3))
+  (r1, d1), (r0, d0) = (n1.reward, n1.metrics["goal_dist"]), (n0.reward, n0.metrics["goal_dist"])
+  bonus = lambda d: 4.0 * (d < 0.01)
+  np.testing.assert_allclose((r1 + d1 - bonus(d1)) - (r0 + d0 - bonus(d0)), -0.05 * 3 * 0.25, atol=1e-5)
+
+
+def _hl(agent, task, ll, **kw):
+  return HighLevelEnv(E.make(agent, task, **kw), ll, None)
+
+
+def test_hl_step_stops_at_epsilon_and_pays_end_reward_minus_skill_penalty():
+  hl = _hl("arm_point", "push1", S.point_ll(30.0, 0.5))
+  s = jax.jit(hl.reset)(jax.random.PRNGKey(0))
+  z = jnp.array([0.0, 0.5])  # 0.035 m up, away from the block
+  n = jax.jit(hl.step)(s, z)
+  assert 0 < n.metrics["ll_steps"] < hl.k  # stopped early ...
+  assert float(n.metrics["sub_goal_dist"]) < 0.01  # ... within epsilon_low of the sub-goal
+  dist = np.linalg.norm(np.asarray(n.next_obs_hi[2:4]) - np.array(Push().destination))
+  assert float(n.reward) == pytest.approx(-dist - 0.05 * 0.035, abs=1e-5)
+  # Without early stopping the LL runs all k steps.
+  hl_k = HighLevelEnv(hl.env, hl.low_policy, None, early_stop=False)
+  assert float(jax.jit(hl_k.step)(s, z).metrics["ll_steps"]) == hl.k
+
+
+def test_waypoint_hl_reward_is_100_once_when_reached_within_the_step():
+  hl = _hl("point", "waypoint", S.point_ll(1.0, 0.3))
+  s = jax.jit(hl.reset)(jax.random.PRNGKey(1))
+  wp = np.asarray(s.obs_hi[2:4])
+  z = np.clip((wp - np.asarray(s.obs_hi[:2])) / hl.delta_max, -1, 1)
+  n = jax.jit(hl.step)(s, jnp.asarray(z, jnp.float32))
+  if float(n.metrics["waypoints"]) > 0:
+    assert float(n.reward) == pytest.approx(100.0 - 0.25 * np.linalg.norm(z * hl.delta_max), abs=1e-4)
+  else:  # too far for one HL step: -0.1 * distance at the end
+    d = np.linalg.norm(np.asarray(n.next_obs_hi[:2]) - wp)
+    assert float(n.reward) == pytest.approx(-0.1 * d - 0.25 * np.linalg.norm(z * hl.delta_max), abs=1e-4)
+
+
+def _u_path(cell):
+  return [((c - 1) * cell, (r - 1) * cell) for r, c in ((1, 1), (1, 2), (1, 3), (2, 3), (3, 3), (3, 2), (3, 1))]
+
+
+@pytest.mark.parametrize("task,cell,kw", [("maze", 8.0, dict(goal="end")), ("steps", 4.0, {})])
+def test_scripted_point_mass_solves_the_u_maze_and_cannot_cut_it(task, cell, kw):
+  hl = _hl("point", task, S.point_ll(1.0, 0.3), **kw)
+  solved, n, _ = S.run_script(hl, S.path_script(_u_path(cell), 1.0))
+  assert solved, f"{task}: the scripted point mass did not reach the end cell"
+  # The middle wall (Maze) or the steps (Steps) block the direct way for a point mass.
+  solved, _, _ = S.run_script(hl, S.path_script([(0.0, 0.0), (0.0, 2 * cell)], 1.0), max_steps=30)
+  assert not solved
+
+
+@pytest.mark.parametrize("agent", ["arm_point", "arm3"])
+@pytest.mark.parametrize("task", ["push1", "push2"])
+def test_scripted_blockpush(agent, task):
+  env = E.make(agent, task)
+  ll = S.point_ll(30.0, 0.5) if agent == "arm_point" else S.arm_ll(env)
+  solved, n, _ = S.run_script(HighLevelEnv(env, ll, None), S.push_script(env.task.destination))
+  assert solved, f"{agent} {task}: not solved in {n} HL steps"
+
+
+@pytest.mark.parametrize("agent", ["arm_point", "arm4"])
+def test_scripted_peg_insert(agent):
+  env = E.make(agent, "insert")
+  ll = S.point_ll(30.0, 0.5) if agent == "arm_point" else S.arm_ll(env)
+  path = [(0.0, -0.10), (0.0, -0.14), (0.0, -0.2)]
+  solved, n, _ = S.run_script(HighLevelEnv(env, ll, None), S.path_script(path, 0.012))
+  assert solved, f"{agent}: peg not inserted in {n} HL steps"
