@@ -274,6 +274,7 @@ def _finish(res, args):
 
 def cmd_train(args) -> int:
   from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import configs
   from hdt.transfer import pipeline
   overrides = _key_values(args.set, "--set")
   seeds = _seeds(args)
@@ -286,6 +287,7 @@ def cmd_train(args) -> int:
   elif args.level == "high":
     _check_agent_task(task=args.task)
     low_meta = ckpt.load_meta(args.low, args.low_seed)
+    overrides = configs.task_options(args.preset, args.task) | overrides
     cfg = _sac_config(args, "high", task=args.task, k=args.k or low_meta["k"])
     out = _out_dir(args, f"high-{args.task}-{low_meta['agent']}")
     res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
@@ -316,6 +318,7 @@ def cmd_align(args) -> int:
 
 def cmd_finetune(args) -> int:
   from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import configs
   from hdt.transfer.finetune import finetune_high
   _check_agent_task(task=args.task)
   hm, lm = ckpt.load_meta(args.high), ckpt.load_meta(args.low, args.low_seed)
@@ -324,7 +327,8 @@ def cmd_finetune(args) -> int:
   res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
                       backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
-                      **_resume_kw(finetune_high, args, out), **_key_values(args.set, "--set"))
+                      **_resume_kw(finetune_high, args, out),
+                      **(configs.task_options(args.preset, args.task) | _key_values(args.set, "--set")))
   return _finish(res, args)
 
 

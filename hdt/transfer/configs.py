@@ -82,6 +82,19 @@ PRESETS = {
 CPU_LOW_STEPS = {"point": 20_000, "manip": 60_000, "legged": 100_000}
 
 
+# Deliberate departures from the authors' code that hdt makes by default (SPEC.md, "Departures"), as
+# task options; ``--preset paper`` switches each off, so that "paper" is the authors' setup.
+PAPER_TASK_OPTIONS = {
+    # The authors' HL sees both absolute positions; hdt's sees the waypoint relative to the agent.
+    "waypoint": dict(hl_relative=(), hl_absolute=True),
+}
+
+
+def task_options(preset: str, task: str) -> dict:
+  """Task overrides that ``preset`` implies (``paper``: the authors' choices)."""
+  return dict(PAPER_TASK_OPTIONS.get(task, {})) if preset == "paper" else {}
+
+
 def family_key(agent: str) -> str:
   spec = AGENTS[agent]
   return "point" if agent == "point" else "legged" if spec.legged else "manip"
