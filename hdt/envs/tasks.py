@@ -103,7 +103,7 @@ class Reach(Task):
 
   def sample(self, key, agent, q):
     z = jax.random.uniform(key, (2,), minval=-agent.delta_max, maxval=agent.delta_max)
-    return {"goal": q["point"] + z}
+    return {"goal": q["point"] + z, "z": z}
 
   def physics_reset(self, key, agent, fell, timeout):
     return fell | (jax.random.uniform(key) < agent.reset_prob)
