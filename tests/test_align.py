@@ -17,54 +17,122 @@ from hdt.transfer.align import align_low, collect_offline, load_discriminator
 from hdt.transfer.pipeline import load_low, train_low
 
 
-def _taus(rng, n, speed):
-  """Synthetic goal-space taus: uniform g - s in the nav box, a step of ``speed`` toward the goal."""
+def _taus(rng, n, speed, z=True):
+  """Synthetic discriminator inputs: uniform g - s in the nav box, a step of ``speed`` toward the
+  goal, and (with ``z``) the episode's sub-goal, here the start g - s itself."""
   d = rng.uniform(-4, 4, (n, 2)).astype(np.float32)
   norm = np.linalg.norm(d, axis=1, keepdims=True)
-  return np.concatenate([d, d - np.minimum(speed, norm) * d / norm], 1)
+  return np.concatenate([d, d - np.minimum(speed, norm) * d / norm] + ([d] if z else []), 1)
+
+
+def _np_reward(r, logit, env_steps, total, w0=0.3, start=200):
+  """Independent reference of DSAC._train_step / _get_discrim_reward (discrim_decay=True): step is
+  the loop index of the latest env step, D = sigmoid output = P(B)."""
+  step = env_steps - 1
+  w = max(w0 * (1.0 - step / total), 0.1)
+  d = 1.0 / (1.0 + np.exp(-np.asarray(logit, np.float64)))
+  bonus = np.clip(-2.0 * np.log(d + 1e-6), 0.0, 10.0)
+  return (1.0 - w) * np.asarray(r) + (w * bonus if step > start else 0.0)
+
+
+def _empty(n_in=6):
+  obs = jnp.zeros((0, 2))
+  return Transition(obs=obs, action=obs, reward=jnp.zeros(0), next_obs=obs, discount=jnp.zeros(0),
+                    extras={"z": jnp.zeros((0, 2)), "first": jnp.zeros(0)})
 
 
 def test_discriminator_separates_distributions():
   rng = np.random.default_rng(0)
   tau_a = _taus(rng, 4096, 0.05)  # A: slow
   tau_b = _taus(rng, 4096, 2.0)  # B: fast
-  cfg = D.DiscConfig(lr=3e-3, stop=1.0)
-  al = D.make_alignment(cfg, tau_a, total_env_steps=400 * cfg.update_every, num_envs=cfg.update_every,
-                        tau_scale=4.0)
+  cfg = D.DiscConfig(lr=3e-3, stop=1.0, update_every=1)
+  al = D.make_alignment(cfg, tau_a, total_env_steps=400, num_envs=1)
   aux = al.aux_init(jax.random.PRNGKey(0))
   buf = jnp.asarray(tau_b)
   aux = dict(aux, buf=aux["buf"].at[: len(buf)].set(buf), size=jnp.int32(len(buf)))
-  obs = jnp.zeros((0, 2))
-  empty = Transition(obs=obs, action=obs, reward=jnp.zeros(0), next_obs=obs, discount=jnp.zeros(0))
-  step = jax.jit(lambda aux, s, k: al.aux_update(aux, empty, s, k))
+  step = jax.jit(lambda aux, s, k: al.aux_update(aux, _empty(), s, k))
   for i in range(400):
-    aux, m = step(aux, jnp.int32((i + 1) * cfg.update_every), jax.random.PRNGKey(i + 1))
+    aux, m = step(aux, jnp.int32(i + 1), jax.random.PRNGKey(i + 1))
   held_a, held_b = _taus(rng, 2000, 0.05), _taus(rng, 2000, 2.0)
   acc = 0.5 * (np.mean(al.apply(aux["params"], held_a) < 0) + np.mean(al.apply(aux["params"], held_b) > 0))
   assert acc > 0.9, acc  # measured 0.99
-  assert int(aux["opt_state"][0].count) == 400
+  assert int(aux["opt_state"].count) == 400
 
 
-def test_reward_sign_and_weight_schedule():
-  r = jnp.zeros(3)
-  logits = jnp.array([-5.0, 0.0, 5.0])  # q(B|tau) low (looks like A), 0.5, high (clearly B)
-  shaped = D.shaped_reward(r, logits, 0.3, clip=10.0)
-  # r - w log q(B): a bonus >= 0, largest when tau looks like A's
-  np.testing.assert_allclose(shaped, -0.3 * np.log(1 / (1 + np.exp(-np.asarray(logits)))), rtol=1e-5)
-  assert shaped[0] > shaped[1] > shaped[2] >= 0
-  assert float(shaped[1]) == pytest.approx(0.3 * np.log(2), rel=1e-5)
-  assert float(D.shaped_reward(0.0, -1e4, 1.0, clip=10.0)) == pytest.approx(10.0)  # clipped
+def test_reward_matches_authors_formula():
+  """(1-w) r + [step > 200] w clip(-2 log(D + 1e-6), 0, 10), w = max(w0 (1 - step/T), 0.1)."""
+  cfg = D.DiscConfig(w_init=0.3)
+  r = np.array([1.0, -2.0, 0.5, 3.0, 0.0], np.float32)
+  logit = np.array([-20.0, -3.0, 0.0, 2.0, 9.0], np.float32)  # D from ~0 (clipped bonus) to ~1
+  total = 10_000
+  for env_steps in [1, 150, 201, 202, 203, 5000, 6668, 9000, 10_000]:
+    got = D.shaped_reward(cfg, r, jax.nn.sigmoid(logit), env_steps - 1, total)
+    np.testing.assert_allclose(np.asarray(got), _np_reward(r, logit, env_steps, total), rtol=1e-5,
+                               atol=1e-5, err_msg=f"env_steps={env_steps}")
+  # the gate: step 200 (the 201st env step) has no bonus, step 201 has it
+  assert float(D.shaped_reward(cfg, 0.0, 1e-9, 200, total)) == 0.0
+  assert float(D.shaped_reward(cfg, 0.0, 1e-9, 201, total)) == pytest.approx(10 * 0.3 * (1 - 201 / total))
+  # w schedule, and constant w without decay
+  w = lambda s, c=cfg: float(D.reward_weight(c, s, 1000))
+  assert w(0) == pytest.approx(0.3) and w(500) == pytest.approx(0.15) and w(700) == pytest.approx(0.1)
+  assert w(999) == pytest.approx(0.1)
+  assert w(500, D.DiscConfig(w_init=0.3, w_decay=False)) == pytest.approx(0.3)
 
-  cfg = D.DiscConfig(w_init=0.3, w_final=0.1, w_frac=0.9)
-  w = lambda s: float(D.reward_weight(cfg, s, 1000))
-  assert w(0) == pytest.approx(0.3)
-  assert w(450) == pytest.approx(0.2)
-  assert w(900) == pytest.approx(0.1) and w(950) == pytest.approx(0.1) and w(1000) == pytest.approx(0.1)
+
+def test_reward_fn_uses_env_step_counter():
+  """The plug-in's reward_fn (what the SAC update calls on sampled batches) matches the reference."""
+  cfg = D.DiscConfig(w_init=0.4)
+  rng = np.random.default_rng(3)
+  al = D.make_alignment(cfg, _taus(rng, 64, 0.1), total_env_steps=1000, num_envs=4)
+  aux = al.aux_init(jax.random.PRNGKey(0))
+  x = _taus(rng, 8, 0.5)
+  batch = Transition(obs=jnp.asarray(np.pad(x[:, :2], ((0, 0), (3, 0)))), action=jnp.zeros((8, 2)),
+                     reward=jnp.asarray(rng.normal(size=8), jnp.float32),
+                     next_obs=jnp.asarray(np.pad(x[:, 2:4], ((0, 0), (3, 0)))), discount=jnp.ones(8),
+                     extras={"z": jnp.asarray(x[:, 4:]), "first": jnp.zeros(8)})
+  logit = np.asarray(al.apply(aux["params"], x))
+  for env_steps in (100, 400):
+    got = al.reward_fn(dict(aux, env_steps=jnp.int32(env_steps)), batch)
+    np.testing.assert_allclose(np.asarray(got), _np_reward(batch.reward, logit, env_steps, 1000, 0.4),
+                               rtol=1e-5, atol=1e-5)
+
+
+def test_soft_label_mse_loss():
+  """MSE between sigmoid outputs and the labels 0.95 (B, the agent) / 0.05 (A, the expert)."""
+  net = D.Discriminator((8,))
+  x = jnp.asarray(_taus(np.random.default_rng(0), 10, 0.3))
+  params = net.init(jax.random.PRNGKey(0), x)
+  labels = jnp.asarray([D.B_LABEL] * 5 + [D.A_LABEL] * 5)
+  loss, acc = D.disc_loss(net.apply, params, x, labels)
+  d = 1 / (1 + np.exp(-np.asarray(net.apply(params, x), np.float64)))
+  want = np.mean((d - np.array([0.95] * 5 + [0.05] * 5)) ** 2)
+  assert float(loss) == pytest.approx(want, rel=1e-5)
+  assert float(acc) == pytest.approx(np.mean((d > 0.5) == np.array([True] * 5 + [False] * 5)))
+  assert (D.B_LABEL, D.A_LABEL) == (0.95, 0.05)
+
+
+def test_discriminator_input_contains_z():
+  """x = (g - s_t, g - s_{t+1}, z), z taken from the transition's extras (the episode's sub-goal)."""
+  obs, nxt, z = jnp.arange(5.0)[None], 10 + jnp.arange(5.0)[None], jnp.array([[7.0, -7.0]])
+  np.testing.assert_array_equal(D.disc_input(obs, nxt, z), [[3, 4, 13, 14, 7, -7]])
+  cfg = D.DiscConfig()
+  assert cfg.include_z and cfg.input_size == 6
+  al = D.make_alignment(cfg, _taus(np.random.default_rng(1), 32, 0.1), total_env_steps=64, num_envs=1)
+  assert al.transition_extras is D.z_extras and "transition_extras" in al.plugins
+  aux = al.aux_init(jax.random.PRNGKey(0))
+  tr = Transition(obs=obs, action=jnp.zeros((1, 2)), reward=jnp.zeros(1), next_obs=nxt,
+                  discount=jnp.ones(1), extras={"z": z, "first": jnp.ones(1)})
+  aux, _ = al.aux_update(aux, tr, jnp.int32(1), jax.random.PRNGKey(1))
+  np.testing.assert_array_equal(aux["buf"][0], [3, 4, 13, 14, 7, -7])
+  # the reward depends on z
+  r1 = al.reward_fn(dict(aux, env_steps=jnp.int32(500)), tr)
+  r2 = al.reward_fn(dict(aux, env_steps=jnp.int32(500)), tr.replace(extras={"z": -z, "first": jnp.ones(1)}))
+  assert float(r1[0]) != float(r2[0])
 
 
 def test_aux_update_buffer_and_update_cadence_vmapped():
-  """num_envs=4 and update_every=8: one discriminator update every other training step, per seed;
-  the circular buffer wraps; the lr schedule reaches 0 at `stop`."""
+  """num_envs=4 and update_every=8: one discriminator update every other training step (at env step
+  indices 0, 8, ...) while step < stop T, per seed; the circular buffer wraps."""
   cfg = D.DiscConfig(update_every=8, buffer_size=10, stop=0.5, lr=1e-2, batch_size=4)
   tau_a = _taus(np.random.default_rng(1), 32, 0.1)
   al = D.make_alignment(cfg, tau_a, total_env_steps=64, num_envs=4)
@@ -75,18 +143,21 @@ def test_aux_update_buffer_and_update_cadence_vmapped():
   for t in range(1, 17):
     obs = jnp.full((seeds, 4, 5), float(t))
     tr = Transition(obs=obs, action=jnp.zeros((seeds, 4, 2)), reward=jnp.zeros((seeds, 4)),
-                    next_obs=obs + 1, discount=jnp.ones((seeds, 4)))
+                    next_obs=obs + 1, discount=jnp.ones((seeds, 4)),
+                    extras={"z": jnp.full((seeds, 4, 2), -float(t)), "first": jnp.zeros((seeds, 4))})
     aux, m = upd(aux, tr, jnp.int32(4 * t), jax.random.split(jax.random.PRNGKey(t), seeds))
-    assert np.all(np.asarray(aux["opt_state"][0].count) == (4 * t) // 8)
+    # updates at step indices 0, 8, 16, 24 (< stop T = 32); the buffer holds >= batch_size / 2 rows
+    want = len([s for s in range(0, 4 * t, 8) if s < 32 and 2 * min(4 * (s // 4 + 1), 10) >= 4])
+    assert np.all(np.asarray(aux["opt_state"].count) == want), (t, aux["opt_state"].count, want)
   assert np.all(np.asarray(aux["size"]) == 10) and np.all(np.asarray(aux["ptr"]) == 64 % 10)
-  # the buffer holds the last 10 taus (steps 14..16), each (t, t, t+1, t+1)
+  # the buffer holds the last 10 inputs (steps 14..16), each (t, t, t+1, t+1, -t, -t)
   held = np.sort(np.asarray(aux["buf"][0, :, 0]))
   np.testing.assert_array_equal(held, [14, 14, 15, 15, 15, 15, 16, 16, 16, 16])
   np.testing.assert_array_equal(np.asarray(aux["buf"][0, :, 2]) - 1, np.asarray(aux["buf"][0, :, 0]))
+  np.testing.assert_array_equal(np.asarray(aux["buf"][0, :, 4]), -np.asarray(aux["buf"][0, :, 0]))
   assert np.asarray(aux["env_steps"]).tolist() == [64, 64]
-  # lr schedule: 8 updates in total, lr annealed to 0 after stop*8 = 4 updates
-  sched = optax.linear_schedule(cfg.lr, 0.0, 4)
-  assert float(sched(4)) == 0.0
+  # lr schedule: lr (1 - step / (stop T)), 0 from stop T on
+  assert float(D.disc_lr(cfg, 16, 64)) == pytest.approx(0.5 * 1e-2) and float(D.disc_lr(cfg, 40, 64)) == 0.0
   changed = jax.tree.leaves(jax.tree.map(lambda a, b: bool(jnp.any(a != b)), aux["params"], params0))
   assert any(changed)
   assert np.all(np.isfinite(np.asarray(m["disc/loss"])))
@@ -103,10 +174,13 @@ def tiny_low(tmp_path_factory):
 
 def test_collect_offline_gives_goal_space_taus(tiny_low):
   tau = collect_offline(tiny_low.run_dir, 300, jax.random.PRNGKey(0), num_envs=16)
-  assert tau.shape == (300, 4) and np.all(np.isfinite(tau))
+  assert tau.shape == (300, 6) and np.all(np.isfinite(tau))
   # goals are uniform in the +-4 box around the start, and one step moves the point a little
   assert np.max(np.abs(tau[:16, :2])) <= 4.0 + 1e-3 and np.std(tau[:, 0]) > 0.5
-  assert np.median(np.linalg.norm(tau[:, :2] - tau[:, 2:], axis=1)) < 1.0
+  assert np.median(np.linalg.norm(tau[:, :2] - tau[:, 2:4], axis=1)) < 1.0
+  # z is the episode's relative goal: at each episode start (the first 16 rows) g - s_0 = z
+  np.testing.assert_allclose(tau[:16, :2], tau[:16, 4:], atol=1e-5)
+  assert np.max(np.abs(tau[:, 4:])) <= 4.0
 
 
 def test_align_low_end_to_end_and_meta(tiny_low, tmp_path):
@@ -119,18 +193,63 @@ def test_align_low_end_to_end_and_meta(tiny_low, tmp_path):
   assert meta["aligned_to"]["path"] == str(tiny_low.run_dir) and meta["discriminator"]["w_init"] == 0.3
   w = res.history["disc/w"]
   assert w.shape == (1, 1) and 0.1 < w[0, 0] < 0.3  # chunk mean of the annealed weight
+  assert meta["discriminator"]["data"] == "offline" and meta["aligned_to"]["n_offline"] == 256
   assert np.all(np.isfinite(res.history["disc/loss"]))
 
   # The discriminator is saved with the LL (inspect / resume the alignment) and reloads exactly.
   logit, m = load_discriminator(tmp_path / "aligned")
-  assert m["aligned_to"]["tau_scale"] == 4.0
+  assert m["aligned_to"]["tau_scale"] == 1.0  # the authors feed raw goal-space units
   tau = collect_offline(tiny_low.run_dir, 64, jax.random.PRNGKey(3), num_envs=16)
   disc = D.Discriminator(tuple(m["discriminator"]["hidden_sizes"]))
-  want = disc.apply(jax.tree.map(lambda x: x[0], res.params["discriminator"]), tau / 4.0)
+  want = disc.apply(jax.tree.map(lambda x: x[0], res.params["discriminator"]), tau)
   np.testing.assert_allclose(np.asarray(logit(tau)), np.asarray(want), rtol=1e-5, atol=1e-6)
   assert load_low(tmp_path / "aligned")[1]["level"] == "low"  # still an ordinary LL checkpoint
   with pytest.raises(ckpt.CheckpointError, match="no discriminator"):
     load_discriminator(tiny_low.run_dir)
+
+
+def test_align_low_online_runs_and_a_follows_b_goals(tiny_low, tmp_path, monkeypatch):
+  """Online data (DiscriminatorEnv): A's frozen LL runs in A's reach env next to each B env and is
+  given B's relative goal z whenever B's episode gets a new goal; A's inputs are written in lockstep
+  with B's, so row i of both buffers carries the same z."""
+  from hdt.transfer import align as align_mod
+  captured = {}
+  real_run = align_mod._run
+
+  def spy(*a, **kw):
+    res = real_run(*a, **kw)
+    captured["plugins"] = kw
+    return res
+
+  monkeypatch.setattr(align_mod, "_run", spy)
+  # B's LL episodes last 20 steps (A's 100), so B's new goals drive A's restarts
+  cfg = configs.low_config("point", total_env_steps=200, num_envs=4, steps_per_chunk=50, batch_size=16,
+                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
+  res = align_low("point", imitate=tiny_low.run_dir, config=cfg, seeds=1, out=tmp_path / "online",
+                  disc=D.DiscConfig(data="online", buffer_size=500, update_every=1), quiet=True,
+                  ll_horizon=20)
+  assert np.all(np.isfinite(res.history["disc/loss"]))
+  meta = json.loads((tmp_path / "online" / "meta.json").read_text())
+  assert meta["discriminator"]["data"] == "online" and meta["aligned_to"]["n_offline"] == 0
+  assert "transition_extras" in captured["plugins"]
+
+  # Replay the training state: A's and B's buffers, row by row, hold the same z
+  from hdt.transfer import checkpoint as ck
+  info = ck.load_state_info(tmp_path / "online")
+  assert info["env_steps"] == 200
+  import orbax.checkpoint as ocp
+  arrays = ocp.PyTreeCheckpointer().restore(ck.state_dir(tmp_path / "online").resolve() / "arrays")
+  leaves = {name: np.asarray(arrays["state"][f"{i:05d}"]) for i, (name, _, _) in enumerate(info["leaves"])}
+  buf_b, buf_a = leaves[".aux['buf']"][0, :200], leaves[".aux['buf_a']"][0, :200]
+  np.testing.assert_array_equal(buf_a[:, 4:], buf_b[:, 4:])
+  assert len(np.unique(buf_b[:, 4], axis=0)) > 4  # several goals, not one
+  # A's final goal is B's current relative goal, for B envs that did not just start a new episode
+  z_b = leaves[".env_state.task['t']['z']"][0]
+  z_a = leaves[".aux['a_state'].task['t']['z']"][0]
+  steps_b = leaves[".env_state.task['steps']"][0]
+  mid = steps_b > 0
+  assert mid.any()
+  np.testing.assert_array_equal(z_a[mid], z_b[mid])
 
 
 def test_align_low_rejects_other_goal_space(tiny_low):
@@ -147,9 +266,10 @@ def _energy_distance(x, y):
 def test_alignment_moves_b_taus_towards_a(tmp_path):
   """Issue 5: B = point mass with 3x actuator gear; its goal-space taus, aligned to A (the normal
   point mass, LL trained 3000 steps), are closer to A's than B's plain LL's taus, by energy distance
-  on tau / delta_max. Same budget (4000 steps) for both B's; the alignment weight is raised to 2 (the
-  paper's 0.3 is too weak for 4000 steps to show against the progress reward).
-  Measured (fixed seeds): plain 0.085, aligned 0.073 (-15%); mean |s_t+1 - s_t| / delta_max: A 0.036,
+  on tau / delta_max. Same budget (4000 steps) for both B's; the alignment weight is a constant 0.9
+  (the paper's 0.3 is too weak for 4000 steps to show against the progress reward).
+  Measured with hdt's earlier reward (r - 2 log q(B), BCE, no z; not yet re-measured with the
+  authors' reward): plain 0.085, aligned 0.073 (-15%); mean |s_t+1 - s_t| / delta_max: A 0.036,
   plain B 0.088, aligned B 0.104, i.e. the gain is in direction, not yet in speed. With an untrained A
   (400 steps) and 2000 steps for B the order was reversed (plain 0.117, aligned 0.150)."""
   small = lambda steps: configs.low_config(
@@ -158,8 +278,8 @@ def test_alignment_moves_b_taus_towards_a(tmp_path):
   a = train_low("point", small(3000), seeds=1, out=tmp_path / "a", quiet=True)
   plain = train_low("point", small(4000), seeds=1, out=tmp_path / "plain", quiet=True, gear_scale=3.0)
   aligned = train_low("point", small(4000), seeds=1, out=tmp_path / "al", quiet=True, gear_scale=3.0,
-                      imitate=a.run_dir, disc=D.DiscConfig(w_init=2.0, w_final=2.0, lr=1e-3, buffer_size=5000))
-  taus = {n: collect_offline(r.run_dir, 1024, jax.random.PRNGKey(5), num_envs=64) / 4.0
+                      imitate=a.run_dir, disc=D.DiscConfig(w_init=0.9, w_decay=False, lr=1e-3, buffer_size=5000))
+  taus = {n: collect_offline(r.run_dir, 1024, jax.random.PRNGKey(5), num_envs=64, include_z=False) / 4.0
           for n, r in [("a", a), ("plain", plain), ("aligned", aligned)]}
   e_plain, e_aligned = (_energy_distance(taus[n], taus["a"]) for n in ("plain", "aligned"))
   assert e_aligned < 0.95 * e_plain, (e_plain, e_aligned)

@@ -1,177 +1,313 @@
-"""Discriminative low-level alignment (paper Algorithm 1, SPEC 4 "Discriminator").
+"""Discriminative low-level alignment (paper Algorithm 1) as the authors' code does it.
 
-A binary classifier ``q_phi(M | tau)`` on goal-space behaviour ``tau = (g - s_t, g - s_{t+1})``
-tells agent A's goal reaching (offline data) from agent B's (B's own SAC transitions). B's LL
-reward becomes (paper eq. LL_update, SPEC 4)::
+Follows ``bot_transfer/algs/discrim_sac.py`` (class ``DSAC``) and ``bot_transfer/envs/hierarchical.py``
+(class ``DiscriminatorEnv``), which win over the paper text and SPEC 4 where they differ:
 
-    r_B = r_task - w * log q(M=B | tau)
+* Input (``DSAC.learn``, ``DiscriminatorEnv.step``): ``x = (g - s_t, g - s_{t+1}, z)`` in raw
+  goal-space units, where ``z`` is the relative sub-goal the episode was given (``skill``); the
+  authors' ``discrim_include_next_state`` / ``discrim_include_skill`` both default to True.
+* Output: ``D(x) = sigmoid(mlp(x))``, trained by mean squared error towards soft labels 0.95 for B
+  (the agent being trained) and 0.05 for A (the expert) (``DSAC.learn`` / ``setup_model``), so D is
+  the probability that x is B's.
+* Reward (``DSAC._train_step``, ``_get_discrim_reward``): for a sampled batch, with ``step`` the
+  index of the latest env step (0-based, the authors' loop variable)::
 
-Sign: ``log q(M=B|tau) <= 0``, so ``-w log q(M=B|tau) >= 0`` is a *bonus* that is ~0 when the
-discriminator is sure the behaviour is B's (q(B) -> 1) and grows as q(B) -> 0, i.e. as B's
-behaviour looks like A's. This is the paper's Sec. 3.2 objective: maximise
-``E[-log q_phi(m | tau)]`` (= maximise H(M | tau), minimise I(M; tau)), "generating behaviours that
-maximally confuse the discriminator"; with B's own samples only the m=B term is under B's control.
-We clip ``-log q(B)`` to ``[0, reward_clip]`` (unbounded as q(B) -> 0).
+      r = (1 - w) * r_task + [step > start] * w * clip(-coef * log(D + 1e-6), 0, clip)
+
+  with ``start = 200``, ``coef = 2``, ``clip = 10`` and, with ``discrim_decay`` (the README's
+  command sets it), ``w = max(w0 * (1 - step / T), 0.1)``. The bonus is recomputed with the current
+  discriminator every time a batch is sampled.
+* Discriminator updates: one Adam step on ``batch_size`` samples drawn from a class-balanced buffer
+  (one A sample stored per B sample), every ``update_every`` env steps while ``step < stop * T``,
+  at ``lr * max(0, 1 - step / (stop * T))``.
+
+A's data: ``"offline"`` (default: the paper's main results and the README's
+``--discrim-online false``) is a fixed set of A's taus on uniformly drawn goals, each with A's own
+z; ``"online"`` runs A's frozen deterministic LL in A's reach env alongside every B env, and A
+restarts on B's relative goal z whenever B's episode gets a new goal (``DiscriminatorEnv.reset``)
+or A's own episode ends (``DiscriminatorEnv.step``).
 
 The plug-ins (:func:`make_alignment`) follow ``hdt.agents.train.make_train``'s contract and are pure
-and vmappable over seeds: ``aux_init(key)``, ``aux_update(aux, transitions, env_steps, key)``,
-``reward_fn(aux, batch)``. The discriminator outputs one logit for "tau came from B", so
-``q(M=B|tau) = sigmoid(logit)``.
+and vmappable over seeds.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Callable, NamedTuple, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import optax
 
-TAU_SIZE = 4
+TAU_SIZE = 4  # (g - s_t, g - s_{t+1})
+Z_SIZE = 2
+B_LABEL, A_LABEL = 0.95, 0.05  # the authors' soft labels: agent (B) 0.95, expert (A) 0.05
+DATA_MODES = ("offline", "online")
 
 
 @dataclasses.dataclass(frozen=True)
 class DiscConfig:
-  """Discriminator hyper-parameters (paper Table "discriminator training"; nav PM row by default)."""
+  """Discriminator hyper-parameters. Mechanisms follow ``discrim_sac.py``; the per-experiment numbers
+  (lr, weight, batch, update frequency, stop) follow the paper's table "discriminator training"."""
 
-  lr: float = 2e-4  # Nav PM 2e-4; PM/2Link (manip) 3e-4; 3Link 5e-4
-  batch_size: int = 64  # per class: each update sees batch_size B + batch_size A taus
+  lr: float = 2e-4  # Nav PM 2e-4 (also the README); PM/2Link (manip) 3e-4; 3Link 5e-4
+  batch_size: int = 64  # samples per update from the class-balanced buffer (discrim_batch_size)
   hidden_sizes: tuple[int, ...] = (32, 32)  # paper text [42, 42]; authors' code [32, 32] tanh
-  update_every: int = 8  # env steps (summed over parallel envs) between discriminator updates
-  w_init: float = 0.3  # reward weight at the start (0.3 nav, 0.4 manip) ...
-  w_final: float = 0.1  # ... annealed linearly to this ...
-  w_frac: float = 0.9  # ... over this fraction of training, then constant
-  stop: float = 0.5  # lr annealed linearly to 0 over this fraction of the discriminator updates
-  reward_clip: float = 10.0  # -log q(B|tau) is clipped to [0, reward_clip]
-  buffer_size: int = 100_000  # circular buffer of B's taus
+  update_every: int = 8  # env steps between updates: paper table 8; DSAC's default discrim_train_freq=1
+  w_init: float = 0.3  # w0: 0.3 nav, 0.4 manip (paper table); DSAC's default discrim_weight=0.5
+  w_min: float = 0.1  # floor of the decayed weight (DSAC.learn)
+  w_decay: bool = True  # w = max(w0 (1 - step/T), w_min); False: constant w0 (DSAC's default)
+  start: int = 200  # the bonus is added only for step > start (discrim_start)
+  coef: float = 2.0  # bonus = clip(-coef log(D + 1e-6), 0, reward_clip) (discrim_coef)
+  reward_clip: float = 10.0  # (discrim_clip)
+  stop: float = 0.5  # updates only while step < stop T, lr linearly to 0 at stop T (discrim_stop)
+  buffer_size: int = 125_000  # per class (the authors' 250k buffer holds both classes)
+  include_z: bool = True  # z in the input (discrim_include_skill)
+  data: str = "offline"  # A's data: "offline" (fixed set) or "online" (A runs alongside B)
+  scale_inputs: bool = False  # True: divide inputs by A's delta_max (the authors feed raw units)
 
   def __post_init__(self):
-    bad = [f"{k}={getattr(self, k)!r} must be a positive integer" for k in
+    object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+    bad = []
+    for k in ("w_decay", "include_z", "scale_inputs"):  # the CLI passes its options as strings
+      v = getattr(self, k)
+      if isinstance(v, str):
+        if v.lower() not in ("true", "false", "1", "0"):
+          bad.append(f"{k}={v!r} must be true or false")
+        object.__setattr__(self, k, v.lower() in ("true", "1"))
+    bad += [f"{k}={getattr(self, k)!r} must be a positive integer" for k in
            ("batch_size", "update_every", "buffer_size") if not getattr(self, k) > 0]
-    bad += [f"{k}={getattr(self, k)!r} must be in (0, 1]" for k in ("w_frac", "stop")
-            if not 0.0 < getattr(self, k) <= 1.0]
-    bad += [f"{k}={getattr(self, k)!r} must be positive" for k in ("lr", "reward_clip")
+    bad += [f"stop={self.stop!r} must be in (0, 1]"] if not 0.0 < self.stop <= 1.0 else []
+    bad += [f"{k}={getattr(self, k)!r} must be positive" for k in ("lr", "reward_clip", "coef")
             if not getattr(self, k) > 0]
+    bad += [f"{k}={getattr(self, k)!r} must be in [0, 1]" for k in ("w_init", "w_min")
+            if not 0.0 <= getattr(self, k) <= 1.0]
+    bad += [f"start={self.start!r} must be >= 0"] if not self.start >= 0 else []
+    bad += [f"data={self.data!r} must be one of {DATA_MODES}"] if self.data not in DATA_MODES else []
     if bad:
-      raise ValueError(f"invalid DiscConfig: {'; '.join(bad)}; the defaults are the paper's values")
+      raise ValueError(f"invalid DiscConfig: {'; '.join(bad)}; the defaults are the authors' values")
+
+  @property
+  def input_size(self) -> int:
+    return TAU_SIZE + (Z_SIZE if self.include_z else 0)
 
 
 class Discriminator(nn.Module):
   hidden_sizes: Sequence[int] = (32, 32)
 
   @nn.compact
-  def __call__(self, tau):
-    x = tau
+  def __call__(self, x):
     for h in self.hidden_sizes:
       x = jnp.tanh(nn.Dense(h)(x))
-    return nn.Dense(1)(x)[..., 0]  # logit of "tau came from B"
+    return nn.Dense(1)(x)[..., 0]  # logit; D = sigmoid(logit) = P(x is B's)
+
+
+def disc_input(obs: jax.Array, next_obs: jax.Array, z: jax.Array | None = None) -> jax.Array:
+  """``(g - s_t, g - s_{t+1}[, z])``: the last 2 entries of the LL obs and next obs (Reach layout),
+  then the episode's relative sub-goal, in the order of ``DSAC.learn``'s discriminator components."""
+  parts = [obs[..., -2:], next_obs[..., -2:]] + ([] if z is None else [z])
+  return jnp.concatenate(parts, axis=-1)
 
 
 def tau_from(obs: jax.Array, next_obs: jax.Array) -> jax.Array:
-  """``(g - s_t, g - s_{t+1})``: the last 2 entries of the LL obs and next obs (Reach task layout)."""
-  return jnp.concatenate([obs[..., -2:], next_obs[..., -2:]], axis=-1)
+  """``(g - s_t, g - s_{t+1})`` without z."""
+  return disc_input(obs, next_obs)
 
 
-def disc_loss(apply_fn, params, tau_b, tau_a):
-  """Sigmoid BCE on a balanced batch: label 1 for B, 0 for A. Returns (loss, accuracy)."""
-  logits = apply_fn(params, jnp.concatenate([tau_b, tau_a]))
-  labels = jnp.concatenate([jnp.ones(tau_b.shape[0]), jnp.zeros(tau_a.shape[0])])
-  loss = jnp.mean(optax.sigmoid_binary_cross_entropy(logits, labels))
-  acc = jnp.mean((logits > 0) == (labels > 0.5))
+def disc_loss(apply_fn, params, x, labels):
+  """Mean squared error between ``D(x) = sigmoid(logit)`` and the soft labels
+  (``tf.losses.mean_squared_error`` in ``DSAC.setup_model``). Returns (loss, accuracy at 0.5)."""
+  d = jax.nn.sigmoid(apply_fn(params, x))
+  loss = jnp.mean(jnp.square(d - labels))
+  acc = jnp.mean((d > 0.5) == (labels > 0.5))
   return loss, acc
 
 
-def reward_weight(cfg: DiscConfig, env_steps, total_env_steps: int) -> jax.Array:
-  """w: linear from w_init to w_final over the first w_frac of training, then w_final."""
-  frac = jnp.clip(jnp.asarray(env_steps, jnp.float32) / (cfg.w_frac * total_env_steps), 0.0, 1.0)
-  return cfg.w_init + (cfg.w_final - cfg.w_init) * frac
+def reward_weight(cfg: DiscConfig, step, total_env_steps: int) -> jax.Array:
+  """``max(w0 (1 - step/T), w_min)`` with ``w_decay`` (the authors' ``discrim_decay``), else ``w0``."""
+  frac = 1.0 - jnp.asarray(step, jnp.float32) / float(total_env_steps)
+  w = jnp.maximum(cfg.w_init * frac, cfg.w_min) if cfg.w_decay else jnp.float32(cfg.w_init) + 0 * frac
+  return w.astype(jnp.float32)
 
 
-def shaped_reward(r_task, logit_b, w, clip: float = 10.0):
-  """``r_task - w * log q(M=B|tau)`` with ``q(M=B|tau) = sigmoid(logit_b)``; ``-log q`` clipped to
-  ``[0, clip]``. The added term is >= 0 and largest when tau looks like A's (q(B) -> 0)."""
-  log_q_b = jax.nn.log_sigmoid(logit_b)
-  return r_task - w * jnp.clip(log_q_b, -clip, 0.0)
+def disc_bonus(d, coef: float = 2.0, clip: float = 10.0):
+  """``clip(-coef log(D + 1e-6), 0, clip)`` (``DSAC._get_discrim_reward``): large when D, the
+  probability of "B", is small, i.e. when B's behaviour looks like A's."""
+  return jnp.clip(-coef * jnp.log(d + 1e-6), 0.0, clip)
+
+
+def shaped_reward(cfg: DiscConfig, r_task, d, step, total_env_steps: int):
+  """``(1 - w) r_task + [step > start] w bonus(D)`` (``DSAC._train_step``); ``step`` is the index of
+  the latest env step (0-based). The task reward is scaled by ``1 - w`` even before ``start``."""
+  w = reward_weight(cfg, step, total_env_steps)
+  on = jnp.asarray(step) > cfg.start
+  return (1.0 - w) * r_task + jnp.where(on, w * disc_bonus(d, cfg.coef, cfg.reward_clip), 0.0)
+
+
+def disc_lr(cfg: DiscConfig, step, total_env_steps: int) -> jax.Array:
+  """``lr max(0, 1 - step / (stop T))`` (``DSAC.learn``)."""
+  return cfg.lr * jnp.maximum(0.0, 1.0 - jnp.asarray(step, jnp.float32) / (cfg.stop * total_env_steps))
+
+
+class OnlineExpert(NamedTuple):
+  """A's frozen LL for online data: its reach env, ``policy_fn(params, obs) -> action`` and params."""
+  env: Any
+  policy_fn: Callable
+  params: Any
+
+
+def z_extras(state, next_state) -> dict:
+  """``make_train``'s ``transition_extras``: the episode's relative sub-goal z (Reach task state) and
+  whether the transition starts an episode (when online A restarts on B's z)."""
+  t = state.task
+  return {"z": t["t"]["z"].astype(jnp.float32), "first": (t["steps"] == 0).astype(jnp.float32)}
+
+
+def _select(c, a, b):
+  return jax.tree_util.tree_map(lambda x, y: jnp.where(c, x, y), a, b)
+
+
+def restart_on_z(env, state, z, where, reset_physics):
+  """One reach-env state restarted (where ``where``) on relative goal ``z``: the goal becomes the
+  current goal-space point + z, the physics goes back to its initial state where ``reset_physics``
+  (as ``DiscriminatorEnv``'s ``expert_env.reset`` + ``set_skill``). Uses the env's own observation
+  function so A sees exactly what its LL was trained on."""
+  ps = _select(where & reset_physics, state.task["init"], state.physics)
+  q = env.quantities(ps)
+  t = _select(where, {"goal": q["point"] + z, "z": z}, state.task["t"])
+  lo, hi, obs = env._observe(ps, q, t)
+  steps = jnp.where(where, 0, state.task["steps"])
+  return state.replace(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo,
+                       task=dict(state.task, t=t, steps=steps))
 
 
 class Alignment(NamedTuple):
   aux_init: Callable
   aux_update: Callable
   reward_fn: Callable
-  apply: Callable  # apply(params, tau) -> logit of B (tau already in raw goal-space units)
-  optimizer: optax.GradientTransformation
+  transition_extras: Callable | None
+  apply: Callable  # apply(params, x) -> logit of B (x in raw goal-space units)
+  cfg: DiscConfig
+
+  @property
+  def plugins(self) -> dict:
+    """The keyword plug-ins of ``make_train`` / ``pipeline._run``."""
+    out = dict(reward_fn=self.reward_fn, aux_init=self.aux_init, aux_update=self.aux_update)
+    return out | ({"transition_extras": self.transition_extras} if self.transition_extras else {})
 
 
-def make_alignment(cfg: DiscConfig, tau_a, total_env_steps: int, num_envs: int,
-                   tau_scale: float = 1.0) -> Alignment:
-  """The make_train plug-ins for aligning B's LL to A's offline taus ``tau_a`` (n, 4).
+def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_envs: int = 1,
+                   tau_scale: float = 1.0, expert: OnlineExpert | None = None) -> Alignment:
+  """The make_train plug-ins aligning B's LL to A.
 
-  tau_scale: goal-space scale (e.g. the goal box ``delta_max``) dividing tau before the tanh MLP.
-  The aux state: ``params``, ``opt_state``, ``buf`` (circular buffer of B's taus), ``ptr``,
-  ``size``, ``env_steps``; A's taus are a constant closed over (shared by all seeds).
+  tau_a: A's offline inputs, shape (n, cfg.input_size) (``data="offline"``).
+  expert: A's LL and reach env (``data="online"``); B's env must be a reach env too (its task
+    state gives z).
+  tau_scale: inputs are divided by it before the MLP (1 = the authors' raw units).
+  The aux state: ``params``, ``opt_state``, ``buf`` (B's inputs), ``ptr``, ``size``, ``env_steps``,
+  and online ``buf_a`` (A's inputs, written in lockstep with ``buf``) and ``a_state`` (A's envs).
   """
-  tau_a = jnp.asarray(tau_a, jnp.float32)
-  if tau_a.ndim != 2 or tau_a.shape[1] != TAU_SIZE or tau_a.shape[0] == 0:
-    raise ValueError(f"tau_a must have shape (n, {TAU_SIZE}), got {tau_a.shape}")
-  net = Discriminator(tuple(cfg.hidden_sizes))
+  online = cfg.data == "online"
+  n_in = cfg.input_size
+  if online:
+    if expert is None:
+      raise ValueError("DiscConfig(data='online') needs expert=OnlineExpert(A's reach env, policy_fn, params)")
+  else:
+    tau_a = jnp.asarray(tau_a, jnp.float32)
+    if tau_a.ndim != 2 or tau_a.shape[1] != n_in or tau_a.shape[0] == 0:
+      raise ValueError(f"tau_a must have shape (n, {n_in}) (include_z={cfg.include_z}), got {tau_a.shape}")
+  if cfg.include_z or online:
+    extras = z_extras
+  else:
+    extras = None
+  net = Discriminator(cfg.hidden_sizes)
   inv = 1.0 / float(tau_scale)
-  apply = lambda params, tau: net.apply(params, tau * inv)
-  total_updates = max(1, total_env_steps // cfg.update_every)
-  lr = optax.linear_schedule(cfg.lr, 0.0, max(1, int(cfg.stop * total_updates)))
-  opt = optax.adam(lr)
-  cap, n_a, bs = cfg.buffer_size, tau_a.shape[0], cfg.batch_size
-  # Discriminator updates per training step (num_envs env steps): at most this many.
-  max_k = math.ceil(num_envs / cfg.update_every)
+  apply = lambda params, x: net.apply(params, x * inv)
+  adam = optax.scale_by_adam()  # the step size is applied by hand: the authors' lr is a function of env steps
+  cap, bs, ue, T = cfg.buffer_size, cfg.batch_size, cfg.update_every, int(total_env_steps)
+  max_k = math.ceil(num_envs / ue)  # discriminator updates per training step, at most
+
+  def inputs(tr: Any) -> jax.Array:
+    return disc_input(tr.obs, tr.next_obs, tr.extras["z"] if cfg.include_z else None)
 
   def aux_init(key):
-    params = net.init(key, jnp.zeros((1, TAU_SIZE), jnp.float32))
-    return dict(params=params, opt_state=opt.init(params),
-                buf=jnp.zeros((cap, TAU_SIZE), jnp.float32), ptr=jnp.zeros((), jnp.int32),
-                size=jnp.zeros((), jnp.int32), env_steps=jnp.zeros((), jnp.int32))
+    params = net.init(key, jnp.zeros((1, n_in), jnp.float32))
+    aux = dict(params=params, opt_state=adam.init(params), buf=jnp.zeros((cap, n_in), jnp.float32),
+               ptr=jnp.zeros((), jnp.int32), size=jnp.zeros((), jnp.int32),
+               env_steps=jnp.zeros((), jnp.int32))
+    if online:
+      aux["buf_a"] = jnp.zeros((cap, n_in), jnp.float32)
+      aux["a_state"] = jax.vmap(expert.env.reset)(jax.random.split(key, num_envs))
+    return aux
 
-  def one_update(params, opt_state, tau_b, tau_a_batch):
-    (loss, acc), g = jax.value_and_grad(lambda p: disc_loss(apply, p, tau_b, tau_a_batch),
-                                        has_aux=True)(params)
-    upd, opt_state = opt.update(g, opt_state, params)
+  def step_expert(a_state, extras, key):
+    """A restarts on B's z where B's episode starts, takes one deterministic step, and restarts on
+    B's current z (fresh physics) where its own episode ended (``DiscriminatorEnv.step``)."""
+    env, z, first = expert.env, extras["z"], extras["first"] > 0
+    coin = jax.vmap(lambda k: env.task.physics_reset(k, env.agent, jnp.bool_(False), jnp.bool_(True)))(
+        jax.random.split(key, z.shape[0]))
+    s = jax.vmap(lambda s, z, f, c: restart_on_z(env, s, z, f, c))(a_state, z, first, coin)
+    nxt = jax.vmap(env.step)(s, expert.policy_fn(expert.params, s.obs))
+    x = disc_input(s.obs, nxt.next_obs, z if cfg.include_z else None)
+    done = nxt.done > 0
+    nxt = jax.vmap(lambda s, z, d: restart_on_z(env, s, z, d, jnp.bool_(True)))(nxt, z, done)
+    return nxt, x
+
+  def one_update(params, opt_state, x, labels, lr):
+    (loss, acc), g = jax.value_and_grad(lambda p: disc_loss(apply, p, x, labels), has_aux=True)(params)
+    upd, opt_state = adam.update(g, opt_state, params)
+    upd = jax.tree_util.tree_map(lambda u: -lr * u, upd)
     return optax.apply_updates(params, upd), opt_state, loss, acc
 
   def aux_update(aux, transitions, env_steps, key):
-    tau = tau_from(transitions.obs, transitions.next_obs).reshape(-1, TAU_SIZE)
-    n = tau.shape[0]
+    k_bits, k_a = jax.random.split(key)
+    x_b = inputs(transitions).reshape(-1, n_in)
+    n = x_b.shape[0]
     idx = (aux["ptr"] + jnp.arange(n)) % cap
-    buf = aux["buf"].at[idx].set(tau)
+    out = dict(aux)
+    if online:
+      out["a_state"], x_a = step_expert(aux["a_state"], transitions.extras, k_a)
+      out["buf_a"] = aux["buf_a"].at[idx].set(x_a)
+    buf = aux["buf"].at[idx].set(x_b)
     ptr, size = (aux["ptr"] + n) % cap, jnp.minimum(aux["size"] + n, cap)
     env_steps = jnp.asarray(env_steps, jnp.int32)
+    # The env-step indices s in [prev, env_steps) of this training step with s % update_every == 0
+    # get one update each (DSAC.learn: `step % discrim_train_freq == 0 and step / T < stop`).
     prev = env_steps - num_envs
-    k = env_steps // cfg.update_every - prev // cfg.update_every  # updates due this step
-    bits = jax.random.bits(key, (max_k, 2, bs), jnp.uint32)
-    i_b = (bits[:, 0] % size.astype(jnp.uint32)).astype(jnp.int32)
-    i_a = (bits[:, 1] % jnp.uint32(n_a)).astype(jnp.int32)
+    s0 = ((prev + ue - 1) // ue) * ue
+    s_j = s0 + ue * jnp.arange(max_k)
+    due = (s_j < env_steps) & (s_j < cfg.stop * T) & (2 * size >= bs)
+    # Samples drawn uniformly from the class-balanced buffer: a fair coin for the class, then a row.
+    bits = jax.random.bits(k_bits, (max_k, 3, bs), jnp.uint32)
+    is_b = (bits[:, 0] & 1) == 1
+    i_b = (bits[:, 1] % size.astype(jnp.uint32)).astype(jnp.int32)
+    a_src = out["buf_a"] if online else tau_a
+    n_a = size if online else jnp.int32(tau_a.shape[0])
+    i_a = (bits[:, 2] % n_a.astype(jnp.uint32)).astype(jnp.int32)
 
     def body(carry, xs):
       params, opt_state = carry
-      j, ib, ia = xs
-      p2, o2, loss, acc = one_update(params, opt_state, buf[ib], tau_a[ia])
-      on = j < k
-      pick = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(on, a, b), new, old)
-      return (pick(p2, params), pick(o2, opt_state)), (loss, acc, on.astype(jnp.float32))
+      on, s, b, ib, ia = xs
+      x = jnp.where(b[:, None], buf[ib], a_src[ia])
+      labels = jnp.where(b, B_LABEL, A_LABEL)
+      p2, o2, loss, acc = one_update(params, opt_state, x, labels, disc_lr(cfg, s, T))
+      return _select(on, (p2, o2), (params, opt_state)), (loss, acc)
 
-    (params, opt_state), (loss, acc, on) = jax.lax.scan(
-        body, (aux["params"], aux["opt_state"]), (jnp.arange(max_k), i_b, i_a))
+    (params, opt_state), (loss, acc) = jax.lax.scan(
+        body, (aux["params"], aux["opt_state"]), (due, s_j, is_b, i_b, i_a))
+    on = due.astype(jnp.float32)
     n_on = jnp.maximum(jnp.sum(on), 1.0)
-    w = reward_weight(cfg, env_steps, total_env_steps)
+    step = env_steps - 1
     metrics = {"disc/loss": jnp.sum(loss * on) / n_on, "disc/acc": jnp.sum(acc * on) / n_on,
-               "disc/w": w}
-    return dict(params=params, opt_state=opt_state, buf=buf, ptr=ptr, size=size,
-                env_steps=env_steps), metrics
+               "disc/w": reward_weight(cfg, step, T), "disc/lr": disc_lr(cfg, step, T)}
+    out.update(params=params, opt_state=opt_state, buf=buf, ptr=ptr, size=size, env_steps=env_steps)
+    return out, metrics
 
   def reward_fn(aux, batch):
-    logit_b = apply(aux["params"], tau_from(batch.obs, batch.next_obs))
-    w = reward_weight(cfg, aux["env_steps"], total_env_steps)
-    return shaped_reward(batch.reward, logit_b, w, cfg.reward_clip)
+    d = jax.nn.sigmoid(apply(aux["params"], inputs(batch)))
+    return shaped_reward(cfg, batch.reward, d, aux["env_steps"] - 1, T)
 
-  return Alignment(aux_init, aux_update, reward_fn, apply, opt)
-
+  return Alignment(aux_init, aux_update, reward_fn, extras, apply, cfg)

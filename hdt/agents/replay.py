@@ -26,6 +26,7 @@ class Transition:
   reward: jax.Array
   next_obs: jax.Array
   discount: jax.Array
+  extras: Any = None  # optional per-transition data of a plug-in (make_train's transition_extras)
 
 
 @struct.dataclass

@@ -50,6 +50,8 @@ from hdt.agents.sac import (
 # aux_init(key) -> aux_state ; aux_update(aux_state, transitions, env_steps, key) -> (aux_state, metrics)
 AuxInit = Callable[[jax.Array], Any]
 AuxUpdate = Callable[[Any, Transition, jax.Array, jax.Array], tuple[Any, dict]]
+# transition_extras(state, next_state) -> pytree stored with each transition (Transition.extras)
+TransitionExtras = Callable[[Any, Any], Any]
 # actor_regularizer_schedule(env_steps) -> multiplier of the actor regulariser (e.g. annealed beta)
 Schedule = Callable[[jax.Array], jax.Array]
 
@@ -172,6 +174,7 @@ def make_train(
     reward_fn: RewardFn | None = None,
     aux_init: AuxInit | None = None,
     aux_update: AuxUpdate | None = None,
+    transition_extras: TransitionExtras | None = None,
 ) -> Trainer:
   """Builds the pure functions ``init``, ``run_chunk``, ``evaluate`` and ``train``.
 
@@ -197,15 +200,18 @@ def make_train(
   schedule = actor_regularizer_schedule or (lambda env_steps: jnp.ones((), jnp.float32))
   n_envs, batch_size = config.num_envs, config.batch_size
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+  spec = replay_lib.make_transition_spec(obs_size, act_size)
+  if transition_extras is not None:
+    one = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    spec = spec.replace(extras=jax.tree_util.tree_map(
+        lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(transition_extras, one, one)))
 
   # ---------------------------------------------------------------------------------------------
   def init(key: jax.Array) -> TrainState:
     k_agent, k_env, k_aux, k_next = jax.random.split(key, 4)
     return TrainState(
         agent=init_sac_state(networks, config, k_agent),
-        replay=replay_lib.init(
-            config.buffer_size, replay_lib.make_transition_spec(obs_size, act_size)
-        ),
+        replay=replay_lib.init(config.buffer_size, spec),
         env_state=v_reset(jax.random.split(k_env, n_envs)),
         key=k_next,
         env_steps=jnp.zeros((), jnp.int32),
@@ -258,6 +264,7 @@ def make_train(
     transitions = Transition(
         obs=f32(obs), action=f32(action), reward=f32(nxt.reward), next_obs=f32(nxt.next_obs),
         discount=f32(nxt.discount),
+        extras=None if transition_extras is None else jax.vmap(transition_extras)(ts.env_state, nxt),
     )
     env_steps = ts.env_steps + n_envs
     aux, aux_metrics = aux_update(ts.aux, transitions, env_steps, k_aux)

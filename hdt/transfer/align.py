@@ -1,5 +1,6 @@
-"""Discriminative LL alignment (paper Algorithm 1): train B's LL on its reach task with the reward
-``r_task - w log q(M=B|tau)`` from a discriminator against A's offline goal-reaching behaviour."""
+"""Discriminative LL alignment (paper Algorithm 1): train B's LL on its reach task with the
+authors' discriminator reward ``(1 - w) r + [step > 200] w clip(-2 log D, 0, 10)`` against A's
+goal-reaching behaviour (``bot_transfer/algs/discrim_sac.py``, see :mod:`hdt.agents.discriminator`)."""
 
 from __future__ import annotations
 
@@ -24,12 +25,14 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
               offline_seed: int = 0, resume=False, save_every=None, **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` aligned to the LL saved in ``imitate`` (agent A).
 
-  A's taus: ``n_offline`` transitions of A's deterministic LL on uniformly sampled goals
-  (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by
-  all seeds. Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
+  A's data (``disc.data``): "offline" (default, as the paper's main results and the authors' README,
+  ``--discrim-online false``): ``n_offline`` transitions of A's deterministic LL on uniformly sampled
+  goals (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by all seeds; "online": A's
+  LL runs in A's reach env alongside each of B's envs on B's sub-goals (``DiscriminatorEnv``).
+  Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
   ``discriminator`` (the DiscConfig). ``resume``, ``save_every``: as in :func:`train_low`.
   """
-  _, meta_a, _ = load_low(imitate, imitate_seed)
+  params_a, meta_a, fn_a = load_low(imitate, imitate_seed)
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = config or configs.low_config(agent)
   meta = env_meta(env, "low", config, env_overrides=env_overrides)
@@ -40,24 +43,31 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
         f"both manip agents")
   if env.observation_size < 2 or meta_a["obs_size"] < 2:
     raise ckpt.CheckpointError("LL observations must end with the 2 goal-space entries g - s")
-  tau_a = collect_offline(imitate, n_offline, jax.random.PRNGKey(offline_seed),
-                                   backend=backend, seed_index=imitate_seed)
-  tau_scale = float(meta_a.get("delta_max") or 1.0)
-  al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
-                               tau_scale=tau_scale)
+  tau_scale = float(meta_a.get("delta_max") or 1.0) if disc.scale_inputs else 1.0
+  if disc.data == "online":
+    env_a = make(meta_a["agent"], "reach", backend=backend, **(meta_a.get("env_overrides") or {}))
+    expert = disc_lib.OnlineExpert(env_a, fn_a, params_a["policy"])
+    al = disc_lib.make_alignment(disc, None, config.total_env_steps, config.num_envs,
+                                 tau_scale=tau_scale, expert=expert)
+  else:
+    tau_a = collect_offline(imitate, n_offline, jax.random.PRNGKey(offline_seed), backend=backend,
+                            seed_index=imitate_seed, include_z=disc.include_z)
+    al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
+                                 tau_scale=tau_scale)
   meta = dict(meta, aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
-                                    n_offline=int(n_offline), offline_seed=offline_seed,
-                                    tau_scale=tau_scale),
+                                    n_offline=int(n_offline) if disc.data == "offline" else 0,
+                                    offline_seed=offline_seed, tau_scale=tau_scale),
               discriminator=dataclasses.asdict(disc))
   return _run(env, config, seeds, out, meta, quiet, f"align {agent}<-{meta_a['agent']}",
-              resume, save_every, reward_fn=al.reward_fn, aux_init=al.aux_init, aux_update=al.aux_update,
+              resume, save_every, **al.plugins,
               # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
               save_extra=lambda ts: {"discriminator": ts.aux["params"]})
 
 
 def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):
-  """(logit_fn(tau) -> logit of "tau came from B", meta) of an aligned LL's saved discriminator;
-  ``tau`` in raw goal-space units (the saved net saw tau / A's delta_max)."""
+  """(logit_fn(x) -> logit of "x came from B", meta) of an aligned LL's saved discriminator; ``x``
+  (:func:`hdt.agents.discriminator.disc_input`) in raw goal-space units (the saved net saw
+  x / tau_scale)."""
   params, meta = ckpt.load(aligned_run, seed_index)
   if "discriminator" not in params or "discriminator" not in meta:
     raise ckpt.CheckpointError(f"{aligned_run} holds no discriminator: it is not an aligned LL "
@@ -69,14 +79,16 @@ def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):
 
 
 def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: int = 64,
-                    seed_index: int = 0) -> np.ndarray:
-  """(n, 4) taus of A's saved LL (deterministic actions) on its reach task (uniform goals in its
-  goal box, the LL training episode structure), ``num_envs`` envs in parallel."""
+                    seed_index: int = 0, include_z: bool = True) -> np.ndarray:
+  """(n, 6) discriminator inputs ``(g - s_t, g - s_{t+1}, z)`` ((n, 4) without z) of A's saved LL
+  (deterministic actions) on its reach task (uniform goals in its goal box, the LL training episode
+  structure), ``num_envs`` envs in parallel; z is the relative goal of A's own episode."""
   params, meta, fn = load_low(low_run_dir, seed_index)
   env = make(meta["agent"], "reach", backend=backend, **(meta.get("env_overrides") or {}))
   policy = params["policy"]
   steps = -(-int(n) // num_envs)
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+  size = disc_lib.TAU_SIZE + (disc_lib.Z_SIZE if include_z else 0)
 
   @jax.jit
   def rollout(key):
@@ -84,9 +96,9 @@ def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: i
 
     def step(s, _):
       nxt = v_step(s, fn(policy, s.obs))
-      return nxt, disc_lib.tau_from(s.obs, nxt.next_obs)
+      return nxt, disc_lib.disc_input(s.obs, nxt.next_obs, s.task["t"]["z"] if include_z else None)
 
-    _, taus = jax.lax.scan(step, s0, None, length=steps)
-    return taus.reshape(-1, disc_lib.TAU_SIZE)
+    _, x = jax.lax.scan(step, s0, None, length=steps)
+    return x.reshape(-1, size)
 
   return np.asarray(rollout(key))[:n]

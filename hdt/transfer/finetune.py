@@ -8,16 +8,27 @@ Gaussians, closed form) to the actor loss, ``beta`` annealed linearly from ``kl`
 The other baselines need no new code: "HL from scratch on B's LL" is
 :func:`hdt.transfer.pipeline.train_high`, "Full" is :func:`hdt.transfer.pipeline.train_full`.
 
+Start (``init="sac"``, default, as the authors' ``scripts/finetune_high_level_kl.py``, which loads
+A's whole stable-baselines SAC with ``bot_transfer/utils/loader.py:load`` and sets
+``learning_starts = 0``): every seed starts from A's policy, both critics, target critics and log
+temperature, with no uniform-random warm-up. As in SB2's ``load`` (only the trainable variables are
+saved), the Adam states, the update counter and the replay buffer start fresh. ``init="policy",
+learning_starts=None`` restores hdt's earlier start: A's policy only, fresh critics at
+``config.init_alpha``, and the config's random warm-up.
+HLs saved before ``target_q`` / ``log_alpha`` were kept fall back (with a warning) to A's critics as
+targets and alpha = ``config.init_alpha``.
+
 Seeds: HL seed ``i`` starts from A's HL seed ``i % n_A``. The frozen KL reference is A's seed
 ``reference_seed`` (default 0) for every seed: the regulariser is a closure over one parameter set
 (``make_train`` has no per-seed plug-in state for it), so with several A seeds, seeds ``i > 0`` start
-from A's seed ``i`` but are pulled towards A's seed 0. Only the policy (with its observation normaliser, if
-it has one; the critics adopt its statistics) is transferred; the critics,
-temperature and replay buffer start fresh.
+from A's seed ``i`` but are pulled towards A's seed 0. A's observation normaliser, if it has one,
+travels with its policy and critics.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import sys
 from pathlib import Path
 
 import jax
@@ -31,26 +42,68 @@ from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.pipeline import (RunResult, _hl_obs_meta, _run, env_meta, high_env, hl_obs_layout,
-                                   train_high)
+                                   sac_extras, train_high)
 
 train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 
 
-def load_high(high: str | Path):
-  """(policy params stacked over A's seeds, metas) of a saved HL, checked to be a high level."""
+INITS = ("sac", "policy")
+
+
+def load_high_sac(high: str | Path):
+  """(params stacked over A's seeds: "policy", "q" and, when saved, "target_q", "log_alpha"; metas)
+  of a saved HL, checked to be a high level."""
   params, metas = ckpt.load_all(high)
   level = metas[0].get("level")
   if level != "high":
     raise ckpt.CheckpointError(f"{high} holds a {level!r}-level policy; finetune_high needs an HL "
                                f"(from `hdt train high`) as high=")
+  return params, metas
+
+
+def load_high(high: str | Path):
+  """(policy params stacked over A's seeds, metas) of a saved HL, checked to be a high level."""
+  params, metas = load_high_sac(high)
   return params["policy"], metas
+
+
+def _check_fits(name, loaded, fresh, high):
+  if jax.tree.structure(loaded) != jax.tree.structure(fresh) or any(
+      a.shape != b.shape for a, b in zip(jax.tree.leaves(loaded), jax.tree.leaves(fresh))):
+    raise ckpt.CheckpointError(f"the {name} parameters in {high} do not fit this SAC (another "
+                               f"architecture or observation/action size)")
+
+
+def start_from_a(agent, a_params, pick, config, high, init: str = "sac"):
+  """``agent`` (a fresh vmapped SACState) with A's SAC of seeds ``pick`` put in: the policy, and with
+  ``init="sac"`` also both critics, target critics and log_alpha (fresh Adam states for all)."""
+  take = lambda tree: jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[pick], jnp.float32), tree)
+  pi_opt, q_opt, a_opt = make_optimizers(config)
+  policy = take(a_params["policy"])
+  _check_fits("policy", policy, agent.policy_params, high)
+  agent = agent.replace(policy_params=policy, policy_opt_state=jax.vmap(pi_opt.init)(policy))
+  if init == "policy":
+    return agent
+  q = take(a_params["q"])
+  _check_fits("critic", q, agent.q_params, high)
+  missing = [k for k in ("target_q", "log_alpha") if k not in a_params]
+  if missing:
+    print(f"warning: {high} has no saved {' or '.join(missing)} (an HL saved before they were kept): "
+          f"finetuning starts from A's critics as targets and alpha={config.init_alpha}", file=sys.stderr)
+  target_q = take(a_params["target_q"]) if "target_q" in a_params else q
+  _check_fits("target critic", target_q, agent.target_q_params, high)
+  log_alpha = take(a_params["log_alpha"]) if "log_alpha" in a_params else agent.log_alpha
+  return agent.replace(q_params=q, target_q_params=target_q, q_opt_state=jax.vmap(q_opt.init)(q),
+                       log_alpha=jnp.reshape(log_alpha, agent.log_alpha.shape),
+                       alpha_opt_state=jax.vmap(a_opt.init)(log_alpha))
 
 
 def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   config: SACConfig | None = None, seeds=1, out=None, anneal_frac: float = 0.5,
                   mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
                   lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
-                  resume=False, save_every=None, **task_overrides) -> RunResult:
+                  resume=False, save_every=None, init: str = "sac", learning_starts: int | None = 0,
+                  **task_overrides) -> RunResult:
   """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
 
   kl: initial weight beta of the KL term (paper: 1 for Waypoint / manipulation, 0.01 for Maze);
@@ -65,7 +118,13 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   reference_seed: A's seed used as the frozen KL reference for every seed.
   resume, save_every: as in :func:`hdt.transfer.pipeline.train_low` (a resumed run restarts from its
     saved state, not from A's HL).
+  init: "sac" (default, the authors'): start from A's policy, critics, target critics and
+    temperature; "policy": A's policy only, fresh critics and temperature (see the module docstring).
+  learning_starts: env steps of uniform-random actions before learning; 0 (default) as the authors'
+    finetuning script; None keeps ``config.learning_starts``.
   """
+  if init not in INITS:
+    raise ValueError(f"init={init!r}: use 'sac' (A's whole SAC) or 'policy' (A's policy only)")
   if mode not in MODES:
     raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi_B || pi_A)) or 'reverse' (KL(pi_A || pi_B))")
   if not (kl >= 0 and np.isfinite(kl)):
@@ -73,7 +132,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   if not (anneal_frac >= 0 and np.isfinite(anneal_frac)):
     raise ValueError(f"anneal_frac={anneal_frac}: must be >= 0 (fraction of training over which "
                      f"beta decays to 0)")
-  a_policy, a_metas = load_high(high)
+  a_params, a_metas = load_high_sac(high)
+  a_policy = a_params["policy"]
   am = a_metas[0]
   n_a = len(a_metas)
   if not 0 <= reference_seed < n_a:
@@ -103,6 +163,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                      f"{a_hidden}; the finetuned policy must have A's architecture")
   if lr is not None:
     config = configs.replace(config, actor_lr=lr, critic_lr=lr, alpha_lr=lr)
+  if learning_starts is not None:
+    config = dataclasses.replace(config, learning_starts=int(learning_starts))
 
   seed_list = sac_train.seed_list(seeds)
   n = len(seed_list)
@@ -119,27 +181,18 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
     )
   trainer = sac_train.make_train(env, config, **plugins)
 
-  # Fresh SAC state per seed, then the policy (and its Adam state) replaced by A's HL.
+  # Fresh SAC state per seed, then A's SAC (or policy) put in; fresh optimiser states and replay.
   ts = sac_train.vmapped(trainer).init(sac_train.seed_keys(seed_list))
   pick = np.arange(n) % n_a
-  init_policy = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[pick], jnp.float32), a_policy)
-  fresh = ts.agent.policy_params
-  if jax.tree.structure(init_policy) != jax.tree.structure(fresh) or any(
-      a.shape != b.shape for a, b in zip(jax.tree.leaves(init_policy), jax.tree.leaves(fresh))):
-    raise ckpt.CheckpointError(f"the policy parameters in {high} do not fit a {a_hidden} SAC policy for "
-                               f"{env.observation_size} -> {env.action_size}")
-  pi_opt = make_optimizers(config)[0]
-  agent = ts.agent.replace(policy_params=init_policy,
-                           policy_opt_state=jax.vmap(pi_opt.init)(init_policy))
-  ts = ts.replace(agent=agent)
+  ts = ts.replace(agent=start_from_a(ts.agent, a_params, pick, config, high, init))
 
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
                   low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides,
                   hl_obs=_hl_obs_meta(env), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
                                       reference_seed=reference_seed),
-                  kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
+                  init=init, kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
   return _run(env, config, seed_list, out, meta, quiet, label, resume, save_every, initial_state=ts,
-              trainer=trainer)
+              trainer=trainer, save_extra=sac_extras)

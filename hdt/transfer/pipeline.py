@@ -280,7 +280,14 @@ def train_high(task: str, low: str | Path, config: SACConfig | None = None, seed
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
                   low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides,
                   hl_obs=_hl_obs_meta(env))
-  return _run(env, config, seeds, out, meta, quiet, f"high {task}", resume, save_every)
+  return _run(env, config, seeds, out, meta, quiet, f"high {task}", resume, save_every,
+              save_extra=sac_extras)
+
+
+def sac_extras(ts) -> dict:
+  """The rest of an HL's SAC beside "policy" and "q" (target critics, log temperature), saved so that
+  finetuning can start from A's whole SAC (``hdt.transfer.finetune``)."""
+  return {"target_q": ts.agent.target_q_params, "log_alpha": ts.agent.log_alpha}
 
 
 def train_full(agent: str, task: str, config: SACConfig | None = None, seeds=1, out=None,
