@@ -121,7 +121,8 @@ def low(agent: str, pr: dict, out: Path, seeds: int, quiet: bool, name: str | No
 
 def high(task: str, low_run: RunResult, pr: dict, out: Path, seeds: int, quiet: bool,
          steps: int | None = None, name: str | None = None, **task_kw) -> RunResult:
-  cfg = high_cfg(task, low_run.meta["k"], steps or pr["high"], pr)
+  budget = pr["high"].get(task, pr["high"]["default"]) if isinstance(pr["high"], dict) else pr["high"]
+  cfg = high_cfg(task, low_run.meta["k"], steps or budget, pr)
   name = name or f"{low_run.meta['agent']}_high_{task}"
   return reuse_or_train(out / name, cfg, seeds, expect={"task_overrides": task_kw}, train=lambda: train_high(
       task, low_run.run_dir, cfg, seeds=seeds, out=out / name, quiet=quiet, **task_kw))

@@ -23,9 +23,11 @@ TASKS = {"point": [("waypoint", {}, [("waypoint", {})]),
                    ("maze", {"goal": "sample"}, [("maze_end", {"goal": "end"}), ("maze_sample", {"goal": "sample"})])]}
 MANIP_TASKS = [("push1", {}, [("push1", {})])]  # (task, training options, [(row name, eval options)])
 
-PRESETS = {  # LL env steps by agent kind, HL steps (HL decisions), seeds, eval episodes
+PRESETS = {  # LL env steps by agent kind, HL decisions (per task, or one number), seeds, eval episodes
     "smoke": dict(low={"point": 2000, "manip": 1000}, high=500, seeds=1, episodes=4),
-    "cpu": dict(low={"point": 20_000, "manip": 60_000}, high=6000, seeds=2, episodes=50),
+    # BlockPush HLs start succeeding after about 20k decisions here (RESULTS.md, learning check).
+    "cpu": dict(low={"point": 20_000, "manip": 60_000}, high={"default": 6000, "push1": 30_000}, seeds=2,
+                episodes=50),
     "paper": dict(low={}, high=None, seeds=5, episodes=100),
 }
 
