@@ -123,8 +123,9 @@ class HighLevelEnv:
     (inner, _, last), per = jax.lax.scan(ll_step, carry0, jnp.arange(self.k))
 
     reward = task.hl_reward(per["reward"], per, last) - task.skill_penalty * jnp.linalg.norm(z)
-    fell = jnp.max(per["fall"]) > 0
-    terminal = fell | inner.task["solved"]
+    # A fall ends the HL step but not the HL episode (high_level_is_done ignores it, e.g. ant.py Ant):
+    # each later HL step then lasts one LL step and pays the task reward of the fallen robot.
+    terminal = inner.task["solved"]
     steps = state.task["steps"] + 1
     done = terminal | (steps >= self.horizon)
     key, k_reset = jax.random.split(state.key)
