@@ -1,0 +1,115 @@
+"""The model zoo: trained policies committed under ``zoo/`` and named ``zoo:NAME`` wherever a run
+directory is accepted (``hdt eval --high zoo:arm_point/push1 --low zoo:arm_point/low``).
+
+An entry is a policy-only copy of a run directory (``meta.json``, ``config.json``, ``metrics.csv``,
+``seed_*/``; no resumable ``state/``) plus ``zoo.json``: the command that trained it, its budget, its
+evaluation numbers and a small deterministic re-evaluation (``check``) that tests replay exactly.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import shutil
+from pathlib import Path
+
+import hdt
+
+ZOO_DIR = Path(__file__).resolve().parents[2] / "zoo"
+PREFIX = "zoo:"
+CHECK_EPISODES, CHECK_KEY = 4, 7
+
+
+class ZooError(ValueError):
+  pass
+
+
+def resolve(path):
+  """``zoo:NAME`` -> the entry's directory; any other path is returned unchanged."""
+  if isinstance(path, str) and path.startswith(PREFIX):
+    name = path[len(PREFIX):].strip("/")
+    d = ZOO_DIR / name
+    if not name or not (d / "zoo.json").is_file():
+      raise ZooError(f"no zoo entry {name!r}; entries: {', '.join(names()) or '(none)'} (see `hdt zoo`)")
+    return d
+  return path
+
+
+def names() -> list[str]:
+  return sorted(str(p.parent.relative_to(ZOO_DIR)) for p in ZOO_DIR.glob("**/zoo.json"))
+
+
+def entries() -> list[dict]:
+  return [json.loads((ZOO_DIR / n / "zoo.json").read_text()) for n in names()]
+
+
+def _evaluate(run: str, low: str | None, task: str, episodes: int, key: int, **task_kw) -> dict:
+  from hdt.transfer import evaluate as ev
+  policy = ev.compose(run, low) if low else ev.load_policy(run)
+  r = ev.evaluate(policy, task, episodes=episodes, key=key, **task_kw)
+  return {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in r.items()}
+
+
+def export(run: str | Path, name: str, command: str, low: str | None = None, task: str | None = None,
+           episodes: int = 100, overwrite: bool = False, **task_kw) -> Path:
+  """Copies the policy of ``run`` into ``zoo/NAME`` and records its numbers. An HL needs ``low`` (a zoo
+  name, which its metadata then points to) and is evaluated on ``task`` (default: its own)."""
+  run = Path(resolve(str(run)))
+  meta = json.loads((run / "meta.json").read_text())
+  if meta.get("level") == "high" and not (low and low.startswith(PREFIX)):
+    raise ZooError(f"{run} is a high level: export its LL first and pass low='zoo:NAME'")
+  dest = ZOO_DIR / name
+  if dest.exists() and not overwrite:
+    raise ZooError(f"zoo entry {name!r} exists; pass overwrite=True (--overwrite) to replace it")
+  task = task or meta["task"]
+  tmp = dest.with_name("." + dest.name + ".tmp")
+  shutil.rmtree(tmp, ignore_errors=True)
+  shutil.copytree(run, tmp, ignore=shutil.ignore_patterns("state", "state.old", "tb", "report", ".*"))
+  if low:  # the HL's hand-off metadata names the zoo LL, not a local run directory
+    for mp in [tmp / "meta.json", *tmp.glob("seed_*/meta.json")]:
+      m = json.loads(mp.read_text())
+      if isinstance(m.get("low"), dict):
+        m["low"]["path"] = low
+        mp.write_text(json.dumps(m, indent=1))
+  tmp_name = str(tmp.relative_to(ZOO_DIR))
+  (tmp / "zoo.json").write_text("{}")  # so that zoo:<tmp> resolves during the evaluations below
+  try:
+    full = _evaluate(PREFIX + tmp_name, low, task, episodes, 1234, **task_kw)
+    check = _evaluate(PREFIX + tmp_name, low, task, CHECK_EPISODES, CHECK_KEY, **task_kw)
+  except Exception:
+    shutil.rmtree(tmp, ignore_errors=True)
+    raise
+  sac = meta.get("sac", {})
+  info = dict(name=name, level=meta["level"], agent=meta["agent"], task=task, task_options=task_kw,
+              low=low, command=command,
+              budget=dict(total=sac.get("total_env_steps"),
+                          unit="HL decisions" if meta["level"] == "high" else "env steps"),
+              seeds=meta.get("seeds"), evaluation=full, check=dict(episodes=CHECK_EPISODES, key=CHECK_KEY,
+                                                                   result=check),
+              hdt_version=hdt.__version__, exported=datetime.date.today().isoformat())
+  (tmp / "zoo.json").write_text(json.dumps(info, indent=1))
+  if dest.exists():
+    shutil.rmtree(dest)
+  dest.parent.mkdir(parents=True, exist_ok=True)
+  tmp.rename(dest)
+  return dest
+
+
+def recheck(name: str) -> tuple[dict, dict]:
+  """(recorded, fresh) results of the entry's deterministic check evaluation."""
+  info = json.loads((ZOO_DIR / name / "zoo.json").read_text())
+  c = info["check"]
+  fresh = _evaluate(PREFIX + name, info["low"], info["task"], c["episodes"], c["key"], **info["task_options"])
+  return c["result"], fresh
+
+
+def table() -> str:
+  """One line per entry: name, level, agent/task, budget, headline numbers (mean ± std over seeds)."""
+  rows = ["name | level | agent | task | budget | return | success | seeds", "---|---|---|---|---|---|---|---"]
+  for e in entries():
+    ev = e["evaluation"]
+    succ = f"{ev['success_mean']:.2f} ± {ev['success_std']:.2f}" if "success_mean" in ev else "-"
+    rows.append(f"{e['name']} | {e['level']} | {e['agent']} | {e['task']} | {e['budget']['total']} "
+                f"{e['budget']['unit']} | {ev['return_mean']:.4g} ± {ev['return_std']:.2g} | {succ} | "
+                f"{len(e['seeds'] or [])}")
+  return "\n".join(rows)
