@@ -131,6 +131,12 @@ def _training(p, env_opts=True):
                          "Default: the paper's value for the agent/level (SPEC 4), then --preset's budget.")
 
 
+def _low_params(p):
+  p.add_argument("--low-params", choices=("best", "final"), default="best",
+                 help="the LL's parameters: those of its best periodic evaluation (as the authors compose "
+                      "an HL over an LL; final if it has none), or its final ones")
+
+
 def build_parser() -> argparse.ArgumentParser:
   p = _Parser(prog="hdt", description=__doc__, formatter_class=_Help)
   sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND", parser_class=_Parser)
@@ -146,6 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
   hi.add_argument("--low", required=True, type=Path, help="LL run directory (from `hdt train low`)")
   hi.add_argument("--low-seed", type=int, default=0, help="seed of --low that drives every HL seed")
   hi.add_argument("--k", type=int, default=None, help="LL steps per HL action (default: the LL's)")
+  _low_params(hi)
   _training(hi)
   fu = tsub.add_parser("full", help="flat SAC on --task with --agent's torques", formatter_class=fmt)
   fu.add_argument("--agent", required=True)
@@ -171,6 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
   ft.add_argument("--mean-only", action="store_true", help="tie only the means")
   ft.add_argument("--lr", type=float, default=None, help="all learning rates (paper: 0.01 / 0.001)")
   ft.add_argument("--low-seed", type=int, default=0)
+  _low_params(ft)
   _training(ft)
 
   ev = sub.add_parser("eval", help="evaluate HL+LL pairs (or a flat --policy); a matrix with NAME=RUN",
@@ -184,6 +192,9 @@ def build_parser() -> argparse.ArgumentParser:
                   help="what to do when the HL's and LL's goal boxes differ")
   ev.add_argument("--set", action="append", metavar="KEY=VALUE", default=[], help="task option, e.g. goal=end")
   ev.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
+  ev.add_argument("--params", choices=("final", "best"), default="final",
+                  help="the HL's (or --policy's) final parameters, or those of its best periodic evaluation")
+  _low_params(ev)
   _common(ev, "where eval.json (and a heatmap) go (default: runs/eval)")
 
   sw = sub.add_parser("sweep", help="seeds x a hyper-parameter grid (seeds vmapped, grid points in turn)",
@@ -269,6 +280,9 @@ def _finish(res, args):
   ev = {k: v for k, v in res.history.items() if k in ("eval/return", "eval/success_max", "eval/goal_dist")}
   summary = ", ".join(f"{k[5:]} {np.mean(v[:, -1]):.3g} ± {np.std(v[:, -1]):.2g}" for k, v in ev.items())
   print(f"{res.run_dir}: final evaluation {summary}")
+  if res.best is not None:  # kept beside the final parameters (seed_<i>/best/, `hdt eval --params best`)
+    best = ", ".join(f"{r:.3g} at {s}" for r, s in zip(res.best["return"], res.best["env_steps"]))
+    print(f"{res.run_dir}: best evaluation per seed (return at env step) {best}")
   return 0
 
 
@@ -289,7 +303,7 @@ def cmd_train(args) -> int:
     cfg = _sac_config(args, "high", task=args.task, k=args.k or low_meta["k"])
     out = _out_dir(args, f"high-{args.task}-{low_meta['agent']}")
     res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
-                              low_seed=args.low_seed, k=args.k, quiet=args.quiet,
+                              low_seed=args.low_seed, k=args.k, quiet=args.quiet, low_params=args.low_params,
                               **_resume_kw(pipeline.train_high, args, out), **overrides)
   else:
     _check_agent_task(args.agent, args.task)
@@ -324,6 +338,7 @@ def cmd_finetune(args) -> int:
   res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
                       backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
+                      low_params=args.low_params,
                       **_resume_kw(finetune_high, args, out), **_key_values(args.set, "--set"))
   return _finish(res, args)
 
@@ -350,20 +365,24 @@ def cmd_eval(args) -> int:
   if args.policy is not None:
     if highs or lows:
       raise CLIError("--policy evaluates a flat policy: do not combine it with --high/--low")
-    pol = load_policy(args.policy)
+    pol = load_policy(args.policy, args.params)
     task = args.task or pol.meta["task"]
   elif len(highs) == 1 and len(lows) == 1:
-    pol = compose(next(iter(highs.values())), next(iter(lows.values())), box=args.box)
+    pol = compose(next(iter(highs.values())), next(iter(lows.values())), box=args.box, which=args.params,
+                  low_which=args.low_params)
     task = args.task or pol.meta["task"]
   elif highs and lows:
     task = args.task or ckpt.load_meta(next(iter(highs.values())))["task"]
-    m = zero_shot_matrix(highs, lows, task, episodes=args.episodes, backend=args.backend, **overrides)
+    m = zero_shot_matrix(highs, lows, task, episodes=args.episodes, backend=args.backend, which=args.params,
+                         low_which=args.low_params, **overrides)
     png = plots.heatmap(m, out / f"matrix_{task}.png")
     rows = [[r] + [fmt(*m["cells"][(r, c)][:2]) for c in m["cols"]] for r in m["rows"]]
     table = markdown_table(["LL \\ HL"] + m["cols"], rows)
     _write_json(out / f"matrix_{task}.json", dict(task=task, rows=m["rows"], cols=m["cols"],
-                cells={f"{r}|{c}": v for (r, c), v in m["cells"].items()}))
-    print(table + f"\n\nheatmap: {png}")
+                cells={f"{r}|{c}": v for (r, c), v in m["cells"].items()},
+                params={f"{r}|{c}": dict(zip(("params", "low_params"), v)) for (r, c), v in m["params"].items()}))
+    print(table + f"\n\nparameters: HL {args.params}, LL {args.low_params} (see {out / f'matrix_{task}.json'})"
+          f"\nheatmap: {png}")
     return 0
   else:
     raise CLIError("give --high RUN and --low RUN (or several NAME=RUN of each for a matrix), or --policy RUN")
@@ -373,6 +392,7 @@ def cmd_eval(args) -> int:
            ", ".join(f"{x:.3g}" for x in ev["per_seed"][k.removesuffix("_mean")])]
           for k in ev if k.endswith("_mean")]
   print(markdown_table(["metric", "mean ± std over seeds", "per seed"], rows))
+  print("parameters: " + ", ".join(f"{k.replace('_', ' ')} {ev[k]}" for k in ("params", "low_params") if k in ev))
   _write_json(out / f"eval_{task}.json", {k: v for k, v in ev.items() if k != "per_seed"}
               | {"per_seed": {k: v.tolist() for k, v in ev["per_seed"].items()}, "task": task})
   print(f"written: {out / f'eval_{task}.json'}")

@@ -56,6 +56,23 @@ def test_eval_and_report_hold_numbers(runs, capsys):
   assert "| return |" in capsys.readouterr().out
 
 
+def test_eval_of_best_params_says_so(runs, capsys):
+  """Each seed keeps its best periodic evaluation beside its final params; the HL trained over the
+  LL's best (as the authors compose) and records it; `hdt eval --params best` loads the HL's best."""
+  for name in ("low", "high"):
+    meta = json.loads((runs / name / "seed_1" / "meta.json").read_text())
+    assert (runs / name / "seed_1" / "best" / "params").is_dir() and meta["best"]["env_steps"] > 0
+  low_rec = json.loads((runs / "high" / "meta.json").read_text())["low"]
+  assert low_rec["params"] == "best" and low_rec["params_env_steps"] > 0
+  for which in ("best", "final"):
+    out = runs / f"eval-{which}"
+    assert main(["eval", "--high", str(runs / "high"), "--low", str(runs / "low"), "--episodes", "2",
+                 "--params", which, "--out", str(out)]) == 0
+    ev = json.loads((out / "eval_waypoint.json").read_text())
+    assert ev["params"] == which and ev["low_params"] == "best"
+    assert f"parameters: params {which}, low params best" in capsys.readouterr().out
+
+
 def test_eval_matrix_writes_heatmap(runs):
   out = runs / "matrix"
   assert main(["eval", "--high", f"pm={runs / 'high'}", "--high", f"pm2={runs / 'high'}", "--low", f"pm={runs / 'low'}",

@@ -65,7 +65,7 @@ def assert_trees_equal(a, b):
 def saved_state(run_dir, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN):
   trainer = sac_train.make_train(env, config, **plugins)
   template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(list(seeds)))
-  return ckpt.load_state(run_dir, template)
+  return ckpt.load_state(run_dir, template)[:3]
 
 
 @pytest.fixture(scope="module")
@@ -110,6 +110,42 @@ def test_resume_equals_uninterrupted_run(uninterrupted, resumed):
   assert_trees_equal(ts_b.agent.policy_params, resumed.params["policy"])
   params, _ = ckpt.load(resumed.run_dir, 1)
   assert_trees_equal(params["policy"], jax.tree.map(lambda x: np.asarray(x[1]), resumed.params["policy"]))
+
+
+def test_best_evaluation_params_survive_resume(uninterrupted, resumed):
+  """The best-of-evaluation record (policy, q, return, env step per seed) of a resumed run equals the
+  uninterrupted run's: it is part of the saved state, and it is saved beside the final params."""
+  assert_trees_equal(resumed.best, uninterrupted.best)
+  ev, steps = uninterrupted.history["eval/return"][:, 1:], uninterrupted.history["eval/env_steps"][:, 1:]
+  first_max = np.argmax(ev, axis=1)  # argmax takes the earliest of ties, as update_best
+  np.testing.assert_array_equal(resumed.best["env_steps"], steps[np.arange(2), first_max])
+  np.testing.assert_array_equal(resumed.best["return"], ev[np.arange(2), first_max])
+  for i in range(2):
+    params, meta = ckpt.load(resumed.run_dir, i, which="best")
+    assert meta["params"] == "best" and meta["params_env_steps"] == meta["best"]["env_steps"] == \
+        int(resumed.best["env_steps"][i])
+    assert_trees_equal(params, jax.tree.map(lambda x: np.asarray(x[i]), {k: resumed.best[k] for k in ("policy", "q")}))
+    assert ckpt.load(resumed.run_dir, i)[1]["params"] == "final"
+
+
+def test_best_params_are_those_of_the_best_evaluation(tmp_path):
+  """update_best keeps, per seed, exactly the params evaluated at the highest mean eval return."""
+  cfg = dataclasses.replace(CFG, total_env_steps=600)
+  seen = {}
+
+  def on_chunk(step, ts, hist, best):
+    seen[step] = jax.device_get({"policy": ts.agent.policy_params, "q": ts.agent.q_params})
+
+  res = sac_train.run(ENV, cfg, [0, 3], on_chunk=on_chunk)
+  ev, steps = res.history["eval/return"][:, 1:], res.history["eval/env_steps"][:, 1:]
+  for i in range(2):
+    at = int(steps[i, np.argmax(ev[i])])
+    assert res.best["env_steps"][i] == at and res.best["return"][i] == ev[i].max()
+    assert_trees_equal({k: jax.tree.map(lambda x: x[i], res.best[k]) for k in ("policy", "q")},
+                       jax.tree.map(lambda x: np.asarray(x[i]), seen[at]))
+  # the record only moves up, and a NaN score never wins
+  nan = sac_train.update_best(res.best, seen[at], np.array([np.nan, -np.inf]), 10**6)
+  assert_trees_equal(nan, res.best)
 
 
 def test_same_config_and_seed_give_identical_metrics(uninterrupted, tmp_path):
@@ -251,7 +287,7 @@ def test_sigkill_during_save_leaves_previous_checkpoint_loadable(tmp_path):
       params, meta = ckpt.load(run, 0)
       assert meta["value"] == 1.0
     else:
-      params, hist, meta = ckpt.load_state(run, template)
+      params, hist, meta = ckpt.load_state(run, template)[:3]
       assert meta["value"] == 1.0 and np.all(hist["critic_loss"] == 1.0)
     np.testing.assert_array_equal(params["w"], np.ones((3, 4), np.float32))
     # The next save completes and clears the leftovers of the killed one.

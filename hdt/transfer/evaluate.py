@@ -15,7 +15,7 @@ from hdt.agents.train import make_train
 from hdt.envs import make
 from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer.pipeline import build_high_env, hl_obs_layout, low_policy_fn
+from hdt.transfer.pipeline import LOW_PARAMS, build_high_env, hl_obs_layout, low_policy_fn
 
 _GOAL_SPACE = {"nav": "navigation (torso xy)", "manip": "manipulation (end-effector xy)"}
 
@@ -39,17 +39,26 @@ class Policy:
     return int(jax.tree.leaves(self.params)[0].shape[0])
 
 
-def load_policy(run: str | Path) -> Policy:
-  params, metas = ckpt.load_all(run)
+def _load(run, which: str, what: str):
+  """(params, metas) of every seed; metas[0]["params"] labels them all (ckpt.params_label)."""
+  params, metas = ckpt.load_all(run, ckpt.check_which(which, what))
+  return params, [dict(metas[0], params=ckpt.params_label(metas))] + metas[1:]
+
+
+def load_policy(run: str | Path, which: str = "final") -> Policy:
+  """A flat policy run; ``which``: its "final" parameters or its "best" evaluation's."""
+  params, metas = _load(run, which, "which")
   return Policy(params["policy"], metas[0])
 
 
-def compose(high: str | Path, low: str | Path, box: str = "refuse") -> Policy:
+def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str = "final",
+            low_which: str = LOW_PARAMS) -> Policy:
   """HL of ``high`` driving the LL of ``low``. Goal spaces must agree; goal boxes that differ are
   refused unless ``box='scale'`` (the HL's [-1, 1] actions span the LL's box) or ``box='keep'``
-  (the HL's box in metres)."""
-  hp, hmetas = ckpt.load_all(high)
-  lp, lmetas = ckpt.load_all(low)
+  (the HL's box in metres). ``which`` / ``low_which``: the HL's / LL's "final" parameters or their
+  "best" evaluation's (the LL's best by default, as the authors compose and as train_high does)."""
+  hp, hmetas = _load(high, which, "which")
+  lp, lmetas = _load(low, low_which, "low_which")
   hm, lm = hmetas[0], lmetas[0]
   if hm.get("level") != "high":
     raise ckpt.CheckpointError(f"{high} holds a {hm.get('level')!r}-level policy; compose needs an HL "
@@ -129,20 +138,27 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
       per_seed[extra] = np.asarray(out[extra])
   summary = {f"{k}_mean": float(np.mean(v)) for k, v in per_seed.items()}
   summary |= {f"{k}_std": float(np.std(v)) for k, v in per_seed.items()}
-  return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **summary)
+  which = {"params": policy.meta.get("params", "final")}  # every number says which parameters made it
+  if policy.low_meta is not None:
+    which["low_params"] = policy.low_meta.get("params", "final")
+  return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary)
 
 
 def zero_shot_matrix(highs: dict[str, str | Path], lows: dict[str, str | Path], task: str,
-                     episodes: int = 100, backend: str = "auto", **kw) -> dict:
+                     episodes: int = 100, backend: str = "auto", which: str = "final",
+                     low_which: str = LOW_PARAMS, **kw) -> dict:
   """Table-1-style matrix: rows = LL agents, columns = HL sources; entries (mean, std) of the task
-  metric (success rate where the task has one, else return)."""
-  cells = {}
+  metric (success rate where the task has one, else return). ``which`` / ``low_which``: as in
+  :func:`compose`; ``params`` maps each cell to the (HL, LL) parameters it used."""
+  cells, used = {}, {}
   for lname, lrun in lows.items():
     for hname, hrun in highs.items():
-      ev = evaluate(compose(hrun, lrun), task, episodes=episodes, backend=backend, **kw)
+      ev = evaluate(compose(hrun, lrun, which=which, low_which=low_which), task, episodes=episodes,
+                    backend=backend, **kw)
       metric = "success" if "success_mean" in ev else "return"
       cells[(lname, hname)] = (ev[f"{metric}_mean"], ev[f"{metric}_std"], metric)
-  return dict(task=task, rows=list(lows), cols=list(highs), cells=cells)
+      used[(lname, hname)] = (ev["params"], ev["low_params"])
+  return dict(task=task, rows=list(lows), cols=list(highs), cells=cells, params=used)
 
 
 def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key: int = 0,

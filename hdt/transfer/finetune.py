@@ -30,15 +30,16 @@ from hdt.agents.kl import MODES, linear_anneal, make_kl_regularizer
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.pipeline import (RunResult, _hl_obs_meta, _run, env_meta, high_env, hl_obs_layout,
-                                   train_high)
+from hdt.transfer.pipeline import (LOW_PARAMS, RunResult, _hl_obs_meta, _run, env_meta, high_env_with_low,
+                                   hl_obs_layout, train_high)
 
 train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 
 
-def load_high(high: str | Path):
-  """(policy params stacked over A's seeds, metas) of a saved HL, checked to be a high level."""
-  params, metas = ckpt.load_all(high)
+def load_high(high: str | Path, which: str = "final"):
+  """(policy params stacked over A's seeds, metas) of a saved HL, checked to be a high level;
+  ``which``: its "final" parameters (as the authors' finetune scripts) or its "best" evaluation's."""
+  params, metas = ckpt.load_all(high, which)
   level = metas[0].get("level")
   if level != "high":
     raise ckpt.CheckpointError(f"{high} holds a {level!r}-level policy; finetune_high needs an HL "
@@ -50,7 +51,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   config: SACConfig | None = None, seeds=1, out=None, anneal_frac: float = 0.5,
                   mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
                   lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
-                  resume=False, save_every=None, **task_overrides) -> RunResult:
+                  resume=False, save_every=None, low_params: str = LOW_PARAMS,
+                  **task_overrides) -> RunResult:
   """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
 
   kl: initial weight beta of the KL term (paper: 1 for Waypoint / manipulation, 0.01 for Maze);
@@ -61,7 +63,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   config: SAC config; default :func:`configs.high_config` of ``task`` with A's hidden sizes.
   lr: if given, overrides actor, critic and temperature learning rates (paper: 0.01 Waypoint /
     manipulation, 0.001 Maze).
-  low_seed: the seed of ``low`` whose LL drives every HL seed (as in ``train_high``).
+  low_seed, low_params: the seed of ``low`` whose LL drives every HL seed, and which of its
+    parameters (as in ``train_high``).
   reference_seed: A's seed used as the frozen KL reference for every seed.
   resume, save_every: as in :func:`hdt.transfer.pipeline.train_low` (a resumed run restarts from its
     saved state, not from A's HL).
@@ -79,7 +82,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
 
-  env = high_env(task, low, low_seed, backend, **(hl_obs_layout(am) | task_overrides))
+  env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params,
+                                   **(hl_obs_layout(am) | task_overrides))
   fam = env.env.agent.family
   if am.get("family") != fam:
     raise ValueError(f"goal spaces do not match: the HL in {high} was trained for the {am.get('family')!r} "
@@ -134,8 +138,9 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   ts = ts.replace(agent=agent)
 
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
-                  low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides,
+                  low=low_rec, task_overrides=task_overrides,
                   hl_obs=_hl_obs_meta(env), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
+                                      params=ckpt.params_label(a_metas),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
                                       reference_seed=reference_seed),
                   kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),

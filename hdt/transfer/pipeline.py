@@ -30,6 +30,7 @@ class RunResult:
   params: Any  # {"policy", "q"} with a leading seed axis
   history: dict[str, np.ndarray]  # leading seed axis
   meta: dict
+  best: dict | None = None  # best periodic evaluation per seed (hdt.agents.train.update_best)
 
 
 def low_policy_fn(hidden_sizes, obs_size: int, action_size: int) -> Callable:
@@ -80,20 +81,21 @@ def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str
   ts, trainer = plugins.pop("initial_state", None), plugins.pop("trainer", None)
   trainer = trainer or sac_train.make_train(env, config, **plugins)
   info = dict(config=dataclasses.asdict(config), meta=meta, seeds=seeds)
-  history = None
+  history = best = None
   if source is not None:
-    ts, history = _resume(source, trainer, info)
+    ts, history, best = _resume(source, trainer, info)
 
-  def on_chunk(step, ts, hist):
+  def on_chunk(step, ts, hist, best):
     if run_dir is not None and (step // save_steps > (step - config.env_steps_per_chunk) // save_steps
                                 or step == config.total_env_steps):
       ckpt.save_state(run_dir, ts, {k: np.stack(v, axis=1) for k, v in hist.items()},
-                      dict(info, env_steps=step))
+                      dict(info, env_steps=step), best)
 
   progress = print_progress(config.total_env_steps, quiet, label)
   try:
     res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
-                        initial_history=history, eval_at_start=history is None, on_chunk=on_chunk)
+                        initial_history=history, initial_best=best, eval_at_start=history is None,
+                        on_chunk=on_chunk)
   except sac_train.TrainingDiverged as e:
     kept = run_dir is not None and ckpt.state_dir(run_dir).exists()
     note = (f" The last good training state is kept in {ckpt.state_dir(run_dir)}." if kept else "")
@@ -104,10 +106,20 @@ def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str
     ckpt.write_json_atomic(run_dir / "config.json", dataclasses.asdict(config))
     ckpt.write_json_atomic(run_dir / "meta.json", dict(meta, seeds=seeds))
     for i, s in enumerate(seeds):
-      ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], params), dict(meta, seed=s))
+      ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], params), dict(meta, seed=s),
+                best=_seed_best(res.best, i))
     write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
     write_tensorboard(run_dir / "tb", res.history, seeds)
-  return RunResult(run_dir, params, res.history, meta)
+  return RunResult(run_dir, params, res.history, meta, res.best)
+
+
+def _seed_best(best: dict | None, i: int) -> tuple[dict, dict] | None:
+  """(params, info) of seed ``i``'s best evaluation for :func:`ckpt.save`, None if it has none."""
+  if best is None or best["env_steps"][i] < 0:
+    return None
+  info = dict(env_steps=int(best["env_steps"][i]), eval_return=float(best["return"][i]),
+              criterion=f"highest mean {sac_train.BEST_CRITERION} over the periodic evaluations")
+  return {k: jax.tree.map(lambda x: x[i], best[k]) for k in ("policy", "q")}, info
 
 
 def _outputs(out, resume) -> tuple[Path | None, Path | None]:
@@ -154,8 +166,11 @@ def _resume(source: Path, trainer, info: dict):
         f"(see {ckpt.state_dir(source) / 'state.json'}) or start a new run in another out= directory")
   template = jax.eval_shape(sac_train.vmapped(trainer).init,
                             sac_train.seed_keys(info["seeds"]))
-  ts, history, _ = ckpt.load_state(source, template)
-  return jax.device_put(ts), history
+  # a state saved before best-of-evaluation selection has no best record: it restarts empty
+  best_template = sac_train.empty_best({"policy": template.agent.policy_params, "q": template.agent.q_params})
+  best_template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype), best_template)
+  saved = ckpt.load_state(source, template, best_template)
+  return jax.device_put(saved.tree), saved.history, saved.best
 
 
 def write_metrics_csv(path: Path, history: dict, seeds) -> None:
@@ -220,9 +235,10 @@ def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, ba
   return _run(env, config, seeds, out, meta, quiet, f"low {agent}", resume, save_every)
 
 
-def load_low(low: str | Path, seed_index: int = 0):
-  """(params, meta, policy_fn) of a saved LL, checked to be a low level."""
-  params, meta = ckpt.load(low, seed_index)
+def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):
+  """(params, meta, policy_fn) of a saved LL, checked to be a low level; ``which``: its "final"
+  parameters or its "best" evaluation's (see :func:`ckpt.load`, ``meta["params"]`` says which)."""
+  params, meta = ckpt.load(low, seed_index, which)
   if meta.get("level") != "low":
     raise ckpt.CheckpointError(f"{low} holds a {meta.get('level')!r}-level policy where a low level "
                                f"was expected (train one with `hdt train low --agent ...`)")
@@ -265,21 +281,40 @@ def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None
                       record=record, delta_max=low_meta["delta_max"] if delta_max is None else delta_max)
 
 
-def high_env(task: str, low: str | Path, low_seed: int = 0, backend="auto", **kw) -> HighLevelEnv:
-  """The HL env of ``task`` over the frozen LL saved in ``low`` (its seed ``low_seed``)."""
-  params, meta, _ = load_low(low, low_seed)
-  return build_high_env(meta, params["policy"], task, backend, **kw)
+# The authors compose with the LL's best model (HighLevelEnv: load_from_name(policy, best=True)).
+LOW_PARAMS = "best"
+
+
+def low_record(low: str | Path, low_seed: int, low_meta: dict) -> dict:
+  """What an HL's metadata records of the frozen LL it was trained over."""
+  return dict(path=str(low), seed_index=low_seed, params=low_meta["params"],
+              params_env_steps=low_meta["params_env_steps"])
+
+
+def high_env_with_low(task: str, low: str | Path, low_seed: int = 0, backend="auto",
+                      low_params: str = LOW_PARAMS, **kw) -> tuple[HighLevelEnv, dict]:
+  """(HL env of ``task`` over the frozen LL saved in ``low``, :func:`low_record` of that LL)."""
+  params, meta, _ = load_low(low, low_seed, ckpt.check_which(low_params, "low_params"))
+  return build_high_env(meta, params["policy"], task, backend, **kw), low_record(low, low_seed, meta)
+
+
+def high_env(task: str, low: str | Path, low_seed: int = 0, backend="auto", low_params: str = LOW_PARAMS,
+             **kw) -> HighLevelEnv:
+  """The HL env of ``task`` over the frozen LL saved in ``low`` (its seed ``low_seed``; its "best"
+  evaluation's parameters by default, as the authors compose, or its "final" ones)."""
+  return high_env_with_low(task, low, low_seed, backend, low_params, **kw)[0]
 
 
 def train_high(task: str, low: str | Path, config: SACConfig | None = None, seeds=1, out=None,
                backend="auto", low_seed: int = 0, k: int | None = None, quiet=False,
-               resume=False, save_every=None, **task_overrides) -> RunResult:
-  """HL SAC on ``task`` over the frozen LL in ``low`` (its seed ``low_seed`` drives every HL seed)."""
-  env = high_env(task, low, low_seed, backend, k=k, **task_overrides)
+               resume=False, save_every=None, low_params: str = LOW_PARAMS,
+               **task_overrides) -> RunResult:
+  """HL SAC on ``task`` over the frozen LL in ``low`` (its seed ``low_seed`` drives every HL seed;
+  ``low_params``: the LL's "best" evaluation's parameters (default, as the authors) or "final")."""
+  env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params, k=k, **task_overrides)
   config = config or configs.high_config(task, env.k)
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
-                  low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides,
-                  hl_obs=_hl_obs_meta(env))
+                  low=low_rec, task_overrides=task_overrides, hl_obs=_hl_obs_meta(env))
   return _run(env, config, seeds, out, meta, quiet, f"high {task}", resume, save_every)
 
 
