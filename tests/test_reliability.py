@@ -7,6 +7,7 @@ a 2-core CPU); the wiring of the public ``resume=`` keyword is checked by the va
 """
 
 import dataclasses
+import hashlib
 import json
 import os
 import signal
@@ -469,7 +470,9 @@ BAD_INPUTS = {
 
 
 def _snapshot(root: Path) -> dict:
-  return {str(p.relative_to(root)): (p.stat().st_mtime_ns, p.stat().st_size) for p in root.rglob("*")}
+  """Content hash of every file and directory name in the tree (what a refused call must not change)."""
+  return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir"
+          for p in root.rglob("*")}
 
 
 @pytest.mark.parametrize("case", list(BAD_INPUTS))

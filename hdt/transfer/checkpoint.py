@@ -13,6 +13,7 @@ saying what to do.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -115,6 +116,41 @@ def _resolve_seed_dir(run_dir: Path, seed_index: int) -> Path:
                           f"{seed_dir(run_dir, seed_index)}); seeds present: "
                           f"{list_seeds(run_dir) or 'none'}")
   return d
+
+
+def content_hash(run_dir: str | Path, seed_index: int | None = None) -> str:
+  """sha256 over the files (relative names and bytes) of one seed's checkpoint, or of every seed's:
+  recorded by runs that depend on a checkpoint, so resuming or evaluating them after it changed
+  (e.g. the LL was retrained) is refused."""
+  dirs = ([_resolve_seed_dir(Path(run_dir), seed_index)] if seed_index is not None
+          else [_resolve_seed_dir(Path(run_dir), s) for s in list_seeds(run_dir)])
+  h = hashlib.sha256()
+  for d in dirs:
+    for f in sorted(p for p in d.rglob("*") if p.is_file()):
+      h.update(str(f.relative_to(d)).encode() + b"\0")
+      h.update(f.read_bytes())
+  return h.hexdigest()
+
+
+def require(meta: dict, fields: dict[str, type | tuple], where: str | Path) -> dict:
+  """``meta`` if each of ``fields`` is present with the given type(s), else a one-line CheckpointError."""
+  for key, types in fields.items():
+    if key not in meta:
+      problem = f"has no {key!r}"
+    elif not isinstance(meta[key], types) or (isinstance(meta[key], bool) and
+                                              bool not in (types if isinstance(types, tuple) else (types,))):
+      problem = f"has {key}={meta[key]!r} ({type(meta[key]).__name__})"
+    else:
+      continue
+    raise CheckpointError(f"checkpoint metadata in {where} {problem}: the file was edited or damaged; "
+                          f"re-run training, or restore it from a backup")
+  return meta
+
+
+def has_state(run_dir: str | Path) -> bool:
+  """Whether ``run_dir`` holds a complete resumable state (``state/``, or ``state.old`` after a kill
+  between the two renames of a save)."""
+  return _resolve(state_dir(run_dir)) is not None
 
 
 def list_seeds(run_dir: str | Path) -> list[int]:
@@ -260,7 +296,7 @@ def load_state_info(run_dir: str | Path) -> dict:
   info = _read_meta(d / "state.json")
   if info.get("kind") != "train_state":
     raise CheckpointError(f"{d} is not a training state (kind={info.get('kind')!r}); re-run training")
-  return info
+  return require(info, {"leaves": list, "history": list}, d / "state.json")
 
 
 class SavedState(NamedTuple):

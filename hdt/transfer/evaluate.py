@@ -15,7 +15,8 @@ from hdt.agents.train import make_train
 from hdt.envs import make
 from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer.pipeline import LOW_PARAMS, build_high_env, hl_obs_layout, low_policy_fn
+from hdt.transfer.pipeline import (LOW_PARAMS, build_high_env, check_memory, hl_obs_layout, low_policy_fn,
+                                   state_bytes)
 
 _GOAL_SPACE = {"nav": "navigation (torso xy)", "manip": "manipulation (end-effector xy)"}
 
@@ -39,10 +40,30 @@ class Policy:
     return int(jax.tree.leaves(self.params)[0].shape[0])
 
 
+# What a policy checkpoint's metadata must hold to be run (checked, so an edited file is one line).
+POLICY_FIELDS = {"level": str, "agent": str, "task": str, "family": str, "obs_size": int, "action_size": int,
+                 "hidden_sizes": list, "delta_max": (int, float), "k": int}
+
+
 def _load(run, which: str, what: str):
   """(params, metas) of every seed; metas[0]["params"] labels them all (ckpt.params_label)."""
   params, metas = ckpt.load_all(run, ckpt.check_which(which, what))
+  for i, m in enumerate(metas):
+    ckpt.require(m, POLICY_FIELDS, Path(run) / f"seed_{i}" / "meta.json")
   return params, [dict(metas[0], params=ckpt.params_label(metas))] + metas[1:]
+
+
+def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
+  """Refuses an HL over the LL run it was trained over if that LL changed since (retrained)."""
+  rec = hm.get("low")
+  if not isinstance(rec, dict) or not rec.get("sha256") or not isinstance(rec.get("path"), str):
+    return  # trained before hashes were recorded, or not over an LL run
+  if Path(rec["path"]).resolve() != Path(low).resolve():
+    return  # another LL: a transfer, not a dependency
+  if ckpt.content_hash(low, int(rec.get("seed_index", 0))) != rec["sha256"]:
+    raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
+                               f"content hash differs: was it retrained?); retrain the HL over it, or "
+                               f"restore the LL it was trained over")
 
 
 def load_policy(run: str | Path, which: str = "final") -> Policy:
@@ -60,6 +81,7 @@ def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str =
   hp, hmetas = _load(high, which, "which")
   lp, lmetas = _load(low, low_which, "low_which")
   hm, lm = hmetas[0], lmetas[0]
+  check_low_unchanged(high, hm, low)
   if hm.get("level") != "high":
     raise ckpt.CheckpointError(f"{high} holds a {hm.get('level')!r}-level policy; compose needs an HL "
                                f"(from `hdt train high`) as high=")
@@ -126,6 +148,10 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
     env = _env_for(policy, task, backend, low_params, **task_overrides)
     return make_train(env, cfg).evaluate(params, k)
 
+  first_low = None if policy.low_params is None else jax.tree.map(lambda x: x[0], policy.low_params)
+  check_memory(len(idx) * episodes * 4 * state_bytes(_env_for(policy, task, backend, first_low, **task_overrides)),
+               f"evaluating {len(idx)} seeds x {episodes} episodes in parallel (env states, ~4 copies)",
+               "lower the number of episodes or seeds")
   params = jax.tree.map(lambda x: x[idx], policy.params)
   low = None if policy.low_params is None else jax.tree.map(lambda x: x[idx], policy.low_params)
   keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(key), i))(jnp.asarray(idx))

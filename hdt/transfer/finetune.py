@@ -51,7 +51,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   config: SACConfig | None = None, seeds=1, out=None, anneal_frac: float = 0.5,
                   mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
                   lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
-                  resume=False, save_every=None, low_params: str = LOW_PARAMS,
+                  resume=False, save_every=None, low_params: str = LOW_PARAMS, overwrite=False,
                   **task_overrides) -> RunResult:
   """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
 
@@ -140,11 +140,11 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
                   low=low_rec, task_overrides=task_overrides,
                   hl_obs=_hl_obs_meta(env), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
-                                      params=ckpt.params_label(a_metas),
+                                      params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
                                       reference_seed=reference_seed),
                   kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
   return _run(env, config, seed_list, out, meta, quiet, label, resume, save_every, initial_state=ts,
-              trainer=trainer)
+              trainer=trainer, overwrite=overwrite)
