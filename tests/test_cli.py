@@ -127,3 +127,176 @@ def test_missing_checkpoint_is_a_clear_error(tmp_path, capsys):
                str(tmp_path / "h"), "--preset", "smoke"]) == 1
   err = capsys.readouterr().err
   assert "does not exist" in err and not (tmp_path / "h").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# Bad inputs from the shell: one line naming the problem and the fix, a non-zero exit, no traceback,
+# and no pre-existing file changed (content hash of the whole tree, and nothing new in the cwd).
+
+import dataclasses  # noqa: E402
+import hashlib  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from hdt.transfer import checkpoint as ckpt  # noqa: E402
+
+
+def tree_hash(root: Path) -> dict:
+  return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir"
+          for p in sorted(root.rglob("*"))}
+
+
+@pytest.fixture(scope="module")
+def fakes(tmp_path_factory):
+  """Run directories written without training (the checks read their metadata), and things that are
+  not runs."""
+  from hdt.envs import make
+  from hdt.transfer import configs, pipeline
+  root = tmp_path_factory.mktemp("fakes")
+  cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=25, batch_size=16,
+                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
+  w = {"w": np.zeros((2,), np.float32)}
+  low_meta = pipeline.env_meta(make("point", "reach"), "low", cfg, env_overrides={})
+
+  def run(name, meta, seed_meta=None):
+    ckpt.save(root / name, 0, {"policy": w, "q": w}, dict(seed_meta or meta, seed=0))
+    ckpt.write_json_atomic(root / name / "meta.json", dict(meta, seeds=[0]))
+
+  run("low", low_meta)
+  run("high", low_meta | dict(level="high", task="waypoint", low=dict(path=str(root / "low"), seed_index=0)))
+  run("k0_low", low_meta | dict(k=0))
+  run("bad_types", low_meta, low_meta | dict(obs_size="x"))
+  run("missing_keys", low_meta, {k: v for k, v in low_meta.items() if k != "hidden_sizes"})
+  run("corrupt", low_meta)
+  (root / "corrupt" / "seed_0" / "meta.json").write_text('{"level": "lo')
+  ckpt.save_state(root / "bad_state", w, {}, dict(config=["not", "a", "dict"], seeds=[0], meta=low_meta))
+  (root / "foreign").mkdir()
+  (root / "foreign" / "notes.txt").write_text("my thesis")
+  (root / "afile").write_text("not a directory")
+  return root
+
+
+LOW = ["train", "low", "--agent", "point", "--preset", "smoke", "--quiet"]
+HIGH = ["train", "high", "--task", "waypoint", "--preset", "smoke", "--quiet", "--low"]
+EVAL = ["eval", "--high", "{high}", "--low", "{low}", "--episodes", "2"]
+SWEEP = ["sweep", "low", "--agent", "point", "--preset", "smoke", "--quiet"]
+FRESH = ["--out", "{new}"]
+
+BAD_CLI = {
+    # where output goes
+    "empty --out": ([*LOW, "--out", ""], "--out is empty, which would write into the current directory"),
+    "blank --out": ([*LOW, "--out", "  "], "--out is empty"),
+    "--out not an hdt dir": ([*LOW, "--out", "{foreign}"], "is not an hdt directory and not empty (it holds notes.txt)"),
+    "--out is a file": ([*LOW, "--out", "{afile}"], "is an existing file"),
+    "--out under a file": ([*LOW, "--out", "{afile}/run"], "lies under the file"),
+    "--out system dir": ([*LOW, "--out", "/usr/hdt-run"], "is a system directory"),
+    "--out in /proc": ([*LOW, "--out", "/proc/hdt-run"], "is a system directory"),
+    "--out root": ([*LOW, "--out", "/"], "is a system directory"),
+    "existing run": ([*LOW, "--out", "{low}"], "already holds a run: pass --resume"),
+    "resume and overwrite": ([*LOW, "--out", "{low}", "--resume", "--overwrite"], "pass one of them"),
+    "resume nothing": ([*LOW, *FRESH, "--resume"], "holds no saved training state"),
+    "resume a run without state": ([*LOW, "--out", "{low}", "--resume"], "holds no saved training state"),
+    "resume damaged state.json": ([*LOW, "--out", "{bad_state}", "--resume"], "config=['not', 'a', 'dict']"),
+    "overwrite a foreign dir": ([*LOW, "--out", "{foreign}", "--overwrite"], "is not an hdt directory"),
+    "sweep into a run": ([*SWEEP, "--grid", "actor_lr=1e-3", "--out", "{low}"], "holds an hdt run directory where this command writes a sweep"),
+    "sweep into a foreign dir": ([*SWEEP, "--grid", "actor_lr=1e-3", "--out", "{foreign}"], "not an hdt directory"),
+    "quickstart into a foreign dir": (["quickstart", "--out", "{foreign}"], "not an hdt directory"),
+    "quickstart into a file": (["quickstart", "--out", "{afile}"], "is an existing file"),
+    "quickstart into a run": (["quickstart", "--out", "{low}"], "holds an hdt run directory where this command writes a quickstart"),
+    "eval --out a file": ([*EVAL, "--out", "{afile}"], "is an existing file"),
+    "eval --out foreign": ([*EVAL, "--out", "{foreign}"], "not an hdt directory"),
+    "eval --out a run": ([*EVAL, "--out", "{low}"], "holds an hdt run directory where this command writes an eval"),
+    # --set values
+    "--set not KEY=VALUE": ([*LOW, *FRESH, "--set", "gear"], "expected KEY=VALUE"),
+    "--set text for a number": ([*LOW, *FRESH, "--set", "delta_max=abc"], "delta_max='abc': expected a finite number > 0"),
+    "--set nan": ([*LOW, *FRESH, "--set", "delta_max=nan"], "delta_max='nan': expected a finite number"),
+    "--set inf": ([*LOW, *FRESH, "--set", "reset_prob=inf"], "reset_prob='inf': expected a finite number"),
+    "--set k=0 on an LL": ([*LOW, *FRESH, "--set", "k=0"], "k=0: expected an integer > 0"),
+    "--set fractional k": ([*LOW, *FRESH, "--set", "k=2.5"], "k=2.5: expected an integer"),
+    "--set negative box": ([*LOW, *FRESH, "--set", "delta_max=-1"], "delta_max=-1: expected a finite number > 0"),
+    "--set number for a name": ([*HIGH, "{low}", *FRESH, "--task", "maze", "--set", "goal=3"], "goal=3: expected str"),
+    "--set unknown option": ([*LOW, *FRESH, "--set", "wheels=4"], "unknown override"),
+    "--set on eval": ([*EVAL, *FRESH, "--set", "hl_horizon=0"], "hl_horizon=0: expected an integer > 0"),
+    # sizes and hyper-parameters
+    "zero seeds": ([*LOW, *FRESH, "--seeds", "0"], "--seeds 0"),
+    "negative seeds": ([*LOW, *FRESH, "--seeds", "-3"], "--seeds -3"),
+    "seeds beyond memory": ([*LOW, *FRESH, "--seeds", "1000000000"], "GiB of memory are available: lower the number of seeds"),
+    "buffer beyond memory": ([*LOW, *FRESH, "--buffer-size", "100000000000", "--batch-size", "16"], "GiB of memory"),
+    "episodes beyond memory": ([*EVAL, *FRESH, "--episodes", "1000000000000"], "lower the number of episodes"),
+    "zero episodes": ([*EVAL[:-2], *FRESH, "--episodes", "0"], "--episodes 0"),
+    "non-numeric batch": ([*LOW, *FRESH, "--batch-size", "many"], "invalid int value: 'many'"),
+    "zero batch": ([*LOW, *FRESH, "--batch-size", "0"], "batch_size=0: must be a positive integer"),
+    "zero learning rate": ([*LOW, *FRESH, "--actor-lr", "0"], "actor_lr=0.0: learning rates must be positive"),
+    "batch > buffer": ([*LOW, *FRESH, "--buffer-size", "8", "--batch-size", "16"], "batch_size=16 > buffer_size=8"),
+    "unknown preset": ([*LOW, *FRESH, "--preset", "huge"], "invalid choice: 'huge'"),
+    # agents, tasks, commands
+    "unknown command": (["frobnicate"], "invalid choice: 'frobnicate'"),
+    "missing agent": (["train", "low", *FRESH], "required: --agent"),
+    "unknown agent": (["train", "low", "--agent", "robot", *FRESH], "unknown agent 'robot'"),
+    "unknown task": ([*HIGH, "{low}", *FRESH, "--task", "juggle"], "unknown task 'juggle'"),
+    "unsupported pair": (["train", "full", "--agent", "point", "--task", "push1", *FRESH], "cannot run task 'push1'"),
+    # checkpoints handed between levels
+    "missing LL": ([*HIGH, "{new}/nope", "--out", "{new}/h"], "does not exist"),
+    "HL given as LL": ([*HIGH, "{high}", *FRESH], "where a low level was expected"),
+    "LL with k=0": ([*HIGH, "{k0_low}", *FRESH], "trained with k=0"),
+    "LL meta of wrong type": ([*HIGH, "{bad_types}", *FRESH], "has obs_size='x' (str)"),
+    "LL meta missing a key": ([*HIGH, "{missing_keys}", *FRESH], "has no 'hidden_sizes'"),
+    "corrupt LL meta": ([*HIGH, "{corrupt}", *FRESH], "corrupt checkpoint metadata"),
+    "HL --k 0": ([*HIGH, "{low}", *FRESH, "--k", "0"], "--k 0: give a positive number"),
+    "unknown --low-params": ([*HIGH, "{low}", *FRESH, "--low-params", "worst"], "invalid choice: 'worst'"),
+    "LL seed out of range": ([*HIGH, "{low}", *FRESH, "--low-seed", "3"], "no checkpoint for seed 3"),
+    "finetune from an LL": (["finetune", "--high", "{low}", "--low", "{low}", "--task", "waypoint", "--preset",
+                             "smoke", *FRESH], "finetune_high needs an HL"),
+    "negative KL": (["finetune", "--high", "{high}", "--low", "{low}", "--task", "waypoint", "--kl", "-1",
+                     "--preset", "smoke", *FRESH], "kl=-1.0: the KL weight must be"),
+    "align across families": (["align", "--agent", "arm3", "--imitate", "{low}", "--preset", "smoke", *FRESH],
+                              "goal spaces differ"),
+    "imitate an HL": (["align", "--agent", "point", "--imitate", "{high}", "--preset", "smoke", *FRESH],
+                      "where a low level was expected"),
+    # evaluation
+    "eval without runs": (["eval", "--task", "waypoint", *FRESH], "give --high RUN and --low RUN"),
+    "eval --policy and --high": (["eval", "--policy", "{low}", "--high", "{high}", *FRESH], "do not combine"),
+    "eval LL as HL": (["eval", "--high", "{low}", "--low", "{low}", *FRESH], "compose needs an HL"),
+    "eval unknown --params": ([*EVAL, *FRESH, "--params", "worst"], "invalid choice: 'worst'"),
+    "eval missing seeds": ([*EVAL, *FRESH, "--seeds", "5"], "pick seed indices of the policy"),
+    "eval unknown task": ([*EVAL, *FRESH, "--task", "nope"], "unknown task 'nope'"),
+    "eval corrupt LL": (["eval", "--high", "{high}", "--low", "{corrupt}", *FRESH], "corrupt checkpoint metadata"),
+    "eval meta missing a key": (["eval", "--high", "{high}", "--low", "{missing_keys}", *FRESH], "has no 'hidden_sizes'"),
+    # sweeps
+    "grid not a SAC field": ([*SWEEP, *FRESH, "--grid", "lr=1,2"], "not a SAC field"),
+    "grid text value": ([*SWEEP, *FRESH, "--grid", "actor_lr=abc"], "actor_lr='abc': expected a finite number"),
+    "grid empty value": ([*SWEEP, *FRESH, "--grid", "actor_lr="], "actor_lr='': expected a finite number"),
+    "grid trailing comma": ([*SWEEP, *FRESH, "--grid", "actor_lr=1e-3,"], "actor_lr='': expected"),
+    "grid nan": ([*SWEEP, *FRESH, "--grid", "actor_lr=nan"], "actor_lr='nan': expected a finite number"),
+    "grid fractional int": ([*SWEEP, *FRESH, "--grid", "batch_size=1.5"], "batch_size='1.5': expected an integer"),
+    "grid tuple field": ([*SWEEP, *FRESH, "--grid", "hidden_sizes=32"], "tuple fields cannot be swept"),
+    "grid field twice": ([*SWEEP, *FRESH, "--grid", "actor_lr=1e-3", "--grid", "actor_lr=1e-4"], "is given twice"),
+    "grid without =": ([*SWEEP, *FRESH, "--grid", "actor_lr"], "expected FIELD=V1,V2"),
+    "no grid": ([*SWEEP, *FRESH], "give at least one --grid"),
+    "sweep without agent": (["sweep", "low", "--grid", "actor_lr=1e-3", *FRESH], "sweep low needs --agent"),
+    "sweep high without LL": (["sweep", "high", "--task", "waypoint", "--grid", "actor_lr=1e-3", *FRESH],
+                              "sweep high needs --low"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_CLI))
+def test_bad_cli_input_is_one_line_and_changes_nothing(case, fakes, tmp_path, capsys, monkeypatch):
+  argv, fragment = BAD_CLI[case]
+  cwd = tmp_path / "cwd"
+  cwd.mkdir()
+  monkeypatch.chdir(cwd)  # default --out directories would appear here
+  names = {p.name: str(p) for p in fakes.iterdir()} | {"new": str(tmp_path / "new")}
+  argv = [a.format(**names) for a in argv]
+  before = tree_hash(fakes)
+  code = main(argv)
+  err = capsys.readouterr().err.strip()
+  assert code != 0 and fragment in err, err
+  assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+  assert "internal error" not in err, err  # each case has its own message, not the catch-all
+  assert tree_hash(fakes) == before
+  assert not (tmp_path / "new").exists() and not any(cwd.iterdir())
+
+
+def test_bad_cli_table_is_large():
+  assert len(BAD_CLI) >= 60
