@@ -94,6 +94,7 @@ def test_existing_run_is_not_overwritten(runs, capsys):
 def test_help_of_every_command():
   out = subprocess.run([sys.executable, "-m", "hdt.cli", "--help"], capture_output=True, text=True)
   assert out.returncode == 0 and all(c in out.stdout for c in COMMANDS)
+  assert "Failed to import" not in out.stdout + out.stderr  # mujoco.mjx's warp notice is muted
   for argv in (["train", "low"], ["train", "high"], ["train", "full"], ["align"], ["finetune"], ["eval"],
                ["sweep"], ["reproduce"], ["report"], ["quickstart"]):
     with pytest.raises(SystemExit) as e:
@@ -300,3 +301,82 @@ def test_bad_cli_input_is_one_line_and_changes_nothing(case, fakes, tmp_path, ca
 
 def test_bad_cli_table_is_large():
   assert len(BAD_CLI) >= 60
+
+
+# ------------------------------------------------------------------------------------------------
+# Resume, dependencies, sweep paths, Ctrl-C.
+
+import os  # noqa: E402
+import shutil  # noqa: E402
+import signal  # noqa: E402
+
+
+def test_cli_resumes_a_state_left_as_state_old(runs, tmp_path, capsys):
+  run = tmp_path / "low"
+  shutil.copytree(runs / "low", run)
+  os.replace(run / "state", run / "state.old")  # killed between the two renames of the last save
+  (run / "meta.json").unlink()
+  assert main(["train", "low", "--agent", "point", "--out", str(run), "--resume", *TINY_LOW]) == 0
+  assert (run / "meta.json").exists() and (run / "state").is_dir() and not (run / "state.old").exists()
+  assert ckpt.load(run, 1)[1]["seed"] == 1
+
+
+def _rewrite_low_path(high: Path, low: Path) -> None:
+  """Points a copied HL's recorded LL at a copied LL (same bytes, so the same content hash)."""
+  for path in [high / "meta.json", *high.glob("seed_*/meta.json"), high / "state" / "state.json"]:
+    obj = json.loads(path.read_text())
+    meta = obj["meta"] if "meta" in obj and path.name == "state.json" else obj
+    meta["low"]["path"] = str(low)
+    ckpt.write_json_atomic(path, obj)
+
+
+def test_eval_and_resume_refuse_an_hl_whose_ll_changed(runs, tmp_path, capsys):
+  low, high = tmp_path / "low", tmp_path / "high"
+  shutil.copytree(runs / "low", low)
+  shutil.copytree(runs / "high", high)
+  _rewrite_low_path(high, low)
+  ev = ["eval", "--high", str(high), "--low", str(low), "--episodes", "2", "--out", str(tmp_path / "ev")]
+  assert main(ev) == 0
+  seed_meta = low / "seed_0" / "meta.json"  # "retrain" the LL: its checkpoint's bytes change
+  ckpt.write_json_atomic(seed_meta, json.loads(seed_meta.read_text()) | {"retrained": True})
+  capsys.readouterr()
+  assert main(ev) == 1
+  err = capsys.readouterr().err.strip()
+  assert "changed after the HL" in err and "retrain the HL" in err and len(err.splitlines()) == 1
+  before = tree_hash(high)
+  assert main(["train", "high", "--task", "waypoint", "--low", str(low), "--out", str(high), "--resume",
+               *TINY_HIGH]) == 1
+  err = capsys.readouterr().err.strip()
+  assert "a checkpoint it depends on changed since it started (low content hash differs" in err, err
+  assert tree_hash(high) == before
+
+
+def test_named_runs_accept_paths_with_equals(tmp_path):
+  from hdt.cli import _named
+  sweep_run = tmp_path / "sweep" / "actor_lr=0.001,batch_size=16"
+  sweep_run.mkdir(parents=True)
+  assert _named([str(sweep_run)]) == {sweep_run.name: sweep_run}
+  assert _named([f"pm={sweep_run}"]) == {"pm": sweep_run}
+  assert _named(["pm=runs/x"]) == {"pm": Path("runs/x")}
+
+
+def test_ctrl_c_exits_130_with_a_resume_hint_and_no_traceback(tmp_path):
+  out = tmp_path / "run"
+  env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
+                                                      os.environ.get("PYTHONPATH", "")]))
+  argv = [sys.executable, "-m", "hdt.cli", "train", "low", "--agent", "point", "--out", str(out),
+          *[a for a in TINY_LOW if a != "--quiet"], "--total-env-steps", "80000"]
+  p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+  try:
+    for line in iter(p.stderr.readline, ""):
+      if "steps" in line and "ETA" in line and ckpt.has_state(out):
+        break
+    p.send_signal(signal.SIGINT)
+    _, rest = p.communicate(timeout=300)
+  finally:
+    p.kill()
+  assert p.returncode == 130, rest
+  lines = [l for l in rest.strip().splitlines() if "ETA" not in l]
+  assert len(lines) == 1 and "Traceback" not in rest, rest
+  assert lines[0].startswith("hdt: interrupted;") and "--resume" in lines[0] and str(out) in lines[0]
+  assert ckpt.has_state(out) and not list(out.glob(".*.tmp")) and "Failed to import" not in rest

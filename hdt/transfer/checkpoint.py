@@ -153,6 +153,14 @@ def has_state(run_dir: str | Path) -> bool:
   return _resolve(state_dir(run_dir)) is not None
 
 
+def settle_state(run_dir: str | Path) -> None:
+  """Completes a save killed between its two renames (``state.old`` but no ``state/``); call it
+  only while holding the run directory's lock."""
+  d = state_dir(run_dir)
+  if not d.exists() and _resolve(d) is not None:
+    os.replace(_resolve(d), d)
+
+
 def list_seeds(run_dir: str | Path) -> list[int]:
   run_dir = Path(run_dir)
   if not run_dir.is_dir():

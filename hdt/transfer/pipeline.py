@@ -92,6 +92,8 @@ def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str
            rundir.claim(run_dir, resume=source is not None and _same(source, run_dir), overwrite=overwrite))
   with claim:
     history = best = None
+    if run_dir is not None and source is not None and _same(source, run_dir):
+      ckpt.settle_state(run_dir)
     if source is not None:
       ts, history, best = _resume(source, trainer, info)
 
@@ -265,7 +267,8 @@ def _check_resumable(source: Path, info: dict) -> None:
   if changed:
     raise ckpt.CheckpointError(
         f"cannot resume {source}: a checkpoint it depends on changed since it started "
-        f"({changed[0].split(':')[0].removesuffix('.sha256')} content hash differs; was it retrained?); "
+        f"({changed[0].split(':')[0].removeprefix('meta.').removesuffix('.sha256')} content hash differs; "
+        f"was it retrained?); "
         f"restore that checkpoint, or start a new run with --overwrite (overwrite=True)")
   if diffs:
     raise ckpt.CheckpointError(

@@ -28,7 +28,7 @@ LOCK = ".hdt-lock"
 SYSTEM_DIRS = tuple(Path(p) for p in ("/bin", "/boot", "/dev", "/etc", "/lib", "/lib64", "/proc", "/sbin",
                                       "/sys", "/usr", "/var/lib", "/var/log"))
 
-LAST_CLAIMED: list[Path] = []  # the directory of the innermost claim, for the Ctrl-C message
+LAST_CLAIMED: list[Path] = []  # directories claimed by this process, latest last (for the Ctrl-C message)
 
 
 class RunDirError(ValueError):
@@ -127,10 +127,7 @@ def _locked(path: Path, kind: str) -> Iterator[None]:
       from hdt.transfer.checkpoint import write_json_atomic  # checkpoint imports nothing from here
       write_json_atomic(path / MARKER, {"kind": kind})
     LAST_CLAIMED.append(path)
-    try:
-      yield
-    finally:
-      LAST_CLAIMED.remove(path)
+    yield
   finally:
     os.close(fd)  # releases the flock
 
