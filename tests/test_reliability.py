@@ -616,3 +616,15 @@ def test_ctrl_c_during_a_save_finishes_the_save_first(tmp_path):
   finally:
     mp.undo()
   assert ckpt.load(run, 0)[1]["level"] == "low"
+
+
+def test_mujoco_warnings_are_counted_not_printed(capfd):
+  import jax.numpy as jnp
+  env = make("ant", "reach")
+  s = env.reset(jax.random.PRNGKey(0))
+  s = s.replace(physics=jax.tree.map(lambda x: x * 1e30 if jnp.issubdtype(x.dtype, jnp.floating) else x, s.physics))
+  with pipeline.counted_mujoco_warnings() as warned:
+    jax.block_until_ready(jax.jit(env.step)(s, jnp.full(env.action_size, 1e30)))
+  out, err = capfd.readouterr()
+  assert warned and "unstable" in warned[0] and "WARNING" not in out + err.replace("simulation warning", "")
+  assert len(err.strip().splitlines()) == 1 and err.startswith(f"MuJoCo reported {len(warned)} simulation warning")

@@ -106,18 +106,38 @@ def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str
 
     progress = print_progress(config.total_env_steps, quiet, label)
     try:
-      res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
-                          initial_history=history, initial_best=best, eval_at_start=history is None,
-                          on_chunk=on_chunk)
+      with counted_mujoco_warnings(quiet) as warned:
+        res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
+                            initial_history=history, initial_best=best, eval_at_start=history is None,
+                            on_chunk=on_chunk)
     except sac_train.TrainingDiverged as e:
       kept = run_dir is not None and ckpt.has_state(run_dir)
       note = (f" The last good training state is kept in {ckpt.state_dir(run_dir)}." if kept else "")
+      note += f" MuJoCo reported {len(warned)} simulation warning(s) before." if warned else ""
       raise sac_train.TrainingDiverged(str(e) + note, e.term, e.env_step, e.seeds) from None
     params = dict(res.params, **(save_extra(res.state) if save_extra else {}))
     if run_dir is not None:
       with rundir.deferred_interrupt():  # a Ctrl-C here would leave some seeds unwritten
         _write_run(run_dir, config, meta, seeds, params, res)
   return RunResult(run_dir, params, res.history, meta, res.best)
+
+
+@contextlib.contextmanager
+def counted_mujoco_warnings(quiet: bool = False):
+  """MuJoCo prints each instability warning ("Nan, Inf or huge value in QACC ...") once per env
+  step, hundreds of lines before hdt's NaN guard stops a diverging run: inside the block they are
+  counted instead (yields the list of messages), and summed up in one line at the end."""
+  import mujoco
+  seen: list[str] = []
+  previous = mujoco.get_mju_user_warning()
+  mujoco.set_mju_user_warning(seen.append)  # also called from the native backend's threads
+  try:
+    yield seen
+  finally:
+    mujoco.set_mju_user_warning(previous)
+    if seen and not quiet:
+      print(f"MuJoCo reported {len(seen)} simulation warning(s), first: {' '.join(seen[0].split())}",
+            file=sys.stderr, flush=True)
 
 
 def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params, res) -> None:
