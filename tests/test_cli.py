@@ -170,6 +170,8 @@ def fakes(tmp_path_factory):
   run("bad_types", low_meta, low_meta | dict(obs_size="x"))
   run("missing_keys", low_meta, {k: v for k, v in low_meta.items() if k != "hidden_sizes"})
   run("corrupt", low_meta)
+  run("mixed", low_meta)
+  ckpt.save(root / "mixed", 1, {"policy": w, "q": w}, dict(low_meta, seed=1))  # a stale seed of an older run
   (root / "corrupt" / "seed_0" / "meta.json").write_text('{"level": "lo')
   ckpt.save_state(root / "bad_state", w, {}, dict(config=["not", "a", "dict"], seeds=[0], meta=low_meta))
   (root / "foreign").mkdir()
@@ -263,6 +265,7 @@ BAD_CLI = {
     "eval missing seeds": ([*EVAL, *FRESH, "--seeds", "5"], "pick seed indices of the policy"),
     "eval unknown task": ([*EVAL, *FRESH, "--task", "nope"], "unknown task 'nope'"),
     "eval corrupt LL": (["eval", "--high", "{high}", "--low", "{corrupt}", *FRESH], "corrupt checkpoint metadata"),
+    "eval a run with a stale seed": (["eval", "--high", "{high}", "--low", "{mixed}", *FRESH], "it mixes two runs"),
     "eval meta missing a key": (["eval", "--high", "{high}", "--low", "{missing_keys}", *FRESH], "has no 'hidden_sizes'"),
     # sweeps
     "grid not a SAC field": ([*SWEEP, *FRESH, "--grid", "lr=1,2"], "not a SAC field"),

@@ -242,6 +242,13 @@ def load_all(run_dir: str | Path, which: str = "final") -> tuple[Any, list[dict]
   seeds = list_seeds(run_dir)
   if not seeds:
     raise CheckpointError(f"no seed checkpoints (seed_0/, ...) in {run_dir}")
+  try:  # a run's meta.json lists its seeds: a checkpoint beyond them is left over from another run
+    declared = json.loads((Path(run_dir) / "meta.json").read_text()).get("seeds")
+  except (OSError, ValueError, AttributeError):
+    declared = None
+  if isinstance(declared, list) and seeds != list(range(len(declared))):
+    raise CheckpointError(f"{run_dir} holds checkpoints seed_{', seed_'.join(map(str, seeds))} but its meta.json "
+                          f"lists {len(declared)} seed(s): it mixes two runs; re-train it with --overwrite")
   loaded = [load(run_dir, s, which) for s in seeds]
   params = jax.tree.map(lambda *x: np.stack(x), *[p for p, _ in loaded])
   return params, [m for _, m in loaded]
