@@ -37,6 +37,7 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 
 from hdt.envs.agents import AGENTS
 from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import rundir
 from hdt.transfer import configs
 from hdt.transfer.evaluate import compose, evaluate, load_policy
 from hdt.transfer.finetune import finetune_high
@@ -103,6 +104,8 @@ def reuse_or_train(run_dir: Path, config, seeds: int, train: Callable[[], RunRes
   if same:
     print(f"reusing {run_dir}", file=sys.stderr, flush=True)
     return RunResult(run_dir, None, read_history(run_dir / "metrics.csv", meta["seeds"]), meta)
+  if run_dir.exists():
+    rundir.discard(run_dir)  # a stale hdt run with other settings (anything else is refused)
   return train()
 
 

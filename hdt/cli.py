@@ -20,7 +20,6 @@ import argparse
 import ast
 import dataclasses
 import importlib.util
-import inspect
 import itertools
 import json
 import sys
@@ -106,13 +105,20 @@ def _key_values(items, what: str) -> dict:
   return out
 
 
+def _out_arg(text: str) -> Path:
+  if not text.strip():
+    raise argparse.ArgumentTypeError("--out is empty, which would write into the current directory; give a "
+                                     "directory name, e.g. runs/my-run")
+  return Path(text)
+
+
 def _common(p, out_help="run directory (default: runs/<what>)"):
   p.add_argument("--seeds", type=int, default=None, help="number of seeds, vmapped in one process "
                  "(default: 1 for training, all seeds of a run for eval)")
   p.add_argument("--preset", choices=PRESETS, default="cpu",
                  help="budget: smoke (seconds), cpu (this machine, minutes), paper (paper budgets) "
                       "(default: %(default)s)")
-  p.add_argument("--out", type=Path, default=None, help=out_help)
+  p.add_argument("--out", type=_out_arg, default=None, help=out_help)
   p.add_argument("--quiet", action="store_true", help="no progress output (CI)")
 
 
@@ -122,13 +128,20 @@ def _training(p, env_opts=True):
                  help="physics backend: auto = native MuJoCo on CPU, MJX on accelerators (default: %(default)s)")
   p.add_argument("--resume", action="store_true",
                  help="continue the run in --out from its last saved training state")
-  p.add_argument("--overwrite", action="store_true", help="replace an existing run in --out")
+  p.add_argument("--overwrite", action="store_true",
+                 help="replace an existing hdt run in --out as a whole (never a directory hdt did not write)")
   if env_opts:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
                    help="agent/task option, e.g. --set goal=end (maze), --set terrain=steps, "
                         "--set delta_max=2.0 (repeatable)")
   _add_dataclass_options(p, SACConfig, "", "SAC hyper-parameters",
                          "Default: the paper's value for the agent/level (SPEC 4), then --preset's budget.")
+
+
+def _low_params(p):
+  p.add_argument("--low-params", choices=("best", "final"), default="best",
+                 help="the LL's parameters: those of its best periodic evaluation (as the authors compose "
+                      "an HL over an LL; final if it has none), or its final ones")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -146,6 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
   hi.add_argument("--low", required=True, type=Path, help="LL run directory (from `hdt train low`)")
   hi.add_argument("--low-seed", type=int, default=0, help="seed of --low that drives every HL seed")
   hi.add_argument("--k", type=int, default=None, help="LL steps per HL action (default: the LL's)")
+  _low_params(hi)
   _training(hi)
   fu = tsub.add_parser("full", help="flat SAC on --task with --agent's torques", formatter_class=fmt)
   fu.add_argument("--agent", required=True)
@@ -171,6 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
   ft.add_argument("--mean-only", action="store_true", help="tie only the means")
   ft.add_argument("--lr", type=float, default=None, help="all learning rates (paper: 0.01 / 0.001)")
   ft.add_argument("--low-seed", type=int, default=0)
+  _low_params(ft)
   _training(ft)
 
   ev = sub.add_parser("eval", help="evaluate HL+LL pairs (or a flat --policy); a matrix with NAME=RUN",
@@ -184,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
                   help="what to do when the HL's and LL's goal boxes differ")
   ev.add_argument("--set", action="append", metavar="KEY=VALUE", default=[], help="task option, e.g. goal=end")
   ev.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
+  ev.add_argument("--params", choices=("final", "best"), default="final",
+                  help="the HL's (or --policy's) final parameters, or those of its best periodic evaluation")
+  _low_params(ev)
   _common(ev, "where eval.json (and a heatmap) go (default: runs/eval)")
 
   sw = sub.add_parser("sweep", help="seeds x a hyper-parameter grid (seeds vmapped, grid points in turn)",
@@ -197,6 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
   sw.add_argument("--set", action="append", metavar="KEY=VALUE", default=[])
   sw.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
   _common(sw, "sweep directory, one run per grid point (default: runs/sweep-<level>)")
+  sw.add_argument("--overwrite", action="store_true", help="replace an existing sweep in --out as a whole")
 
   rp = sub.add_parser("reproduce", help="re-run a paper table/figure (experiments/NAME.py)", formatter_class=fmt)
   rp.add_argument("name", choices=EXPERIMENTS)
@@ -214,6 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
   q = sub.add_parser("quickstart", help="PM LL + HL on Waypoint, HL transferred to an ant LL, in minutes",
                      formatter_class=fmt)
   _common(q, "root of the quickstart's runs (default: runs/quickstart)")
+  q.add_argument("--overwrite", action="store_true", help="replace an existing quickstart in --out as a whole")
   return p
 
 
@@ -227,22 +247,23 @@ def _seeds(args, default=1) -> int:
   return n
 
 
-def _out_dir(args, name: str) -> Path:
-  out = args.out or Path("runs") / name
-  if (out / "meta.json").exists() and not (getattr(args, "resume", False) or getattr(args, "overwrite", False)):
-    raise CLIError(f"{out} already holds a run: pass --resume to continue it, --overwrite to replace it, "
-                   f"or another --out")
-  if getattr(args, "resume", False) and not (out / "meta.json").exists() and not (out / "state").exists():
-    raise CLIError(f"--resume: {out} holds no run to continue; drop --resume or pass the run's --out")
+def _out_dir(args, name: str, kind: str = "run", reuse: bool = False) -> Path:
+  """--out (default runs/<name>), checked before anything is loaded or compiled (hdt.transfer.rundir)."""
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import rundir
+  out = args.out if args.out is not None else Path("runs") / name
+  resume, overwrite = getattr(args, "resume", False), getattr(args, "overwrite", False)
+  if resume and overwrite:
+    raise CLIError("--resume continues the run in --out, --overwrite replaces it: pass one of them")
+  rundir.check_claimable(out, kind, resume=resume, overwrite=overwrite, reuse=reuse, what="--out")
+  if resume and not ckpt.has_state(out):
+    raise CLIError(f"--resume: {out} holds no saved training state to continue (a run killed before its first "
+                   f"save); start it again with --overwrite, or pass the run's --out")
   return out
 
 
-def _resume_kw(fn, args, out: Path) -> dict:
-  if not getattr(args, "resume", False):
-    return {}
-  if "resume" not in inspect.signature(fn).parameters:
-    raise CLIError("--resume is not supported by this version of hdt")
-  return {"resume": True}
+def _run_kw(args) -> dict:
+  return {"resume": True} if args.resume else {"overwrite": True} if args.overwrite else {}
 
 
 def _sac_config(args, level: str, agent=None, task=None, k=None, **extra) -> SACConfig:
@@ -269,6 +290,9 @@ def _finish(res, args):
   ev = {k: v for k, v in res.history.items() if k in ("eval/return", "eval/success_max", "eval/goal_dist")}
   summary = ", ".join(f"{k[5:]} {np.mean(v[:, -1]):.3g} ± {np.std(v[:, -1]):.2g}" for k, v in ev.items())
   print(f"{res.run_dir}: final evaluation {summary}")
+  if res.best is not None:  # kept beside the final parameters (seed_<i>/best/, `hdt eval --params best`)
+    best = ", ".join(f"{r:.3g} at {s}" for r, s in zip(res.best["return"], res.best["env_steps"]))
+    print(f"{res.run_dir}: best evaluation per seed (return at env step) {best}")
   return 0
 
 
@@ -277,28 +301,31 @@ def cmd_train(args) -> int:
   from hdt.transfer import configs
   from hdt.transfer import pipeline
   overrides = _key_values(args.set, "--set")
+  pipeline.check_env_overrides(overrides, getattr(args, "agent", None), getattr(args, "task", None) or "reach")
   seeds = _seeds(args)
   if args.level == "low":
     _check_agent_task(args.agent)
     cfg = _sac_config(args, "low", args.agent)
     out = _out_dir(args, f"low-{args.agent}")
     res = pipeline.train_low(args.agent, cfg, seeds=seeds, out=out, backend=args.backend, quiet=args.quiet,
-                             **_resume_kw(pipeline.train_low, args, out), **overrides)
+                             **_run_kw(args), **overrides)
   elif args.level == "high":
     _check_agent_task(task=args.task)
-    low_meta = ckpt.load_meta(args.low, args.low_seed)
+    low_meta = pipeline.load_low(args.low, args.low_seed)[1]  # checked to be a usable LL
+    if args.k is not None and args.k <= 0:
+      raise CLIError(f"--k {args.k}: give a positive number of LL steps per HL action")
     overrides = configs.task_options(args.preset, args.task) | overrides
     cfg = _sac_config(args, "high", task=args.task, k=args.k or low_meta["k"])
     out = _out_dir(args, f"high-{args.task}-{low_meta['agent']}")
     res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
-                              low_seed=args.low_seed, k=args.k, quiet=args.quiet,
-                              **_resume_kw(pipeline.train_high, args, out), **overrides)
+                              low_seed=args.low_seed, k=args.k, quiet=args.quiet, low_params=args.low_params,
+                              **_run_kw(args), **overrides)
   else:
     _check_agent_task(args.agent, args.task)
     cfg = _sac_config(args, "full", args.agent, args.task)
     out = _out_dir(args, f"full-{args.agent}-{args.task}")
     res = pipeline.train_full(args.agent, args.task, cfg, seeds=seeds, out=out, backend=args.backend,
-                              quiet=args.quiet, **_resume_kw(pipeline.train_full, args, out), **overrides)
+                              quiet=args.quiet, **_run_kw(args), **overrides)
   return _finish(res, args)
 
 
@@ -306,12 +333,14 @@ def cmd_align(args) -> int:
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer.align import align_low
   _check_agent_task(args.agent)
-  imitate_meta = ckpt.load_meta(args.imitate)  # fails early, with the checkpoint's own message
+  from hdt.transfer.pipeline import check_env_overrides, load_low
+  imitate_meta = load_low(args.imitate)[1]  # fails early, with the checkpoint's own message
+  check_env_overrides(_key_values(args.set, "--set"), args.agent, "reach")
   disc = DiscConfig(**_overrides(args, DiscConfig, "disc_"))
   cfg = _sac_config(args, "low", args.agent)
   out = _out_dir(args, f"align-{args.agent}-to-{imitate_meta['agent']}")
   res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
-                  backend=args.backend, quiet=args.quiet, **_resume_kw(align_low, args, out),
+                  backend=args.backend, quiet=args.quiet, **_run_kw(args),
                   **_key_values(args.set, "--set"))
   return _finish(res, args)
 
@@ -321,21 +350,29 @@ def cmd_finetune(args) -> int:
   from hdt.transfer import configs
   from hdt.transfer.finetune import finetune_high
   _check_agent_task(task=args.task)
-  hm, lm = ckpt.load_meta(args.high), ckpt.load_meta(args.low, args.low_seed)
+  from hdt.transfer.pipeline import check_env_overrides, load_low
+  check_env_overrides(_key_values(args.set, "--set"), task=args.task)
+  hm = ckpt.require(ckpt.load_meta(args.high), {"agent": str, "hidden_sizes": list}, args.high)
+  lm = load_low(args.low, args.low_seed)[1]
   cfg = _sac_config(args, "high", task=args.task, k=lm["k"], hidden_sizes=tuple(hm["hidden_sizes"]))
   out = _out_dir(args, f"finetune-{args.task}-{hm['agent']}-to-{lm['agent']}-kl{args.kl:g}")
   res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
                       backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
-                      **_resume_kw(finetune_high, args, out),
+                      low_params=args.low_params,
+                      **_run_kw(args),
                       **(configs.task_options(args.preset, args.task) | _key_values(args.set, "--set")))
   return _finish(res, args)
 
 
 def _named(items) -> dict[str, Path]:
+  """RUN or NAME=RUN; an existing path is always a RUN (sweep run directories contain '='), and NAME
+  ends at the first '='."""
   out = {}
   for it in items:
-    name, _, run = it.rpartition("=") if "=" in it else (Path(it).name, "", it)
+    name, sep, run = it.partition("=")
+    if not sep or Path(it).exists() or "/" in name:
+      name, run = "", it
     out[name or Path(run).name] = Path(run)
   return out
 
@@ -346,28 +383,37 @@ def cmd_eval(args) -> int:
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer.evaluate import compose, evaluate, load_policy, zero_shot_matrix
 
+  from hdt.transfer import rundir
+  from hdt.transfer.pipeline import check_env_overrides
   overrides = _key_values(args.set, "--set")
-  out = args.out or Path("runs/eval")
+  check_env_overrides(overrides, task=args.task)
+  out = _out_dir(args, "eval", kind="eval", reuse=True)  # evaluations add files to an eval directory
   if args.episodes <= 0:
     raise CLIError(f"--episodes {args.episodes}: give a positive number of episodes")
   highs, lows = _named(args.high), _named(args.low)
   if args.policy is not None:
     if highs or lows:
       raise CLIError("--policy evaluates a flat policy: do not combine it with --high/--low")
-    pol = load_policy(args.policy)
+    pol = load_policy(args.policy, args.params)
     task = args.task or pol.meta["task"]
   elif len(highs) == 1 and len(lows) == 1:
-    pol = compose(next(iter(highs.values())), next(iter(lows.values())), box=args.box)
+    pol = compose(next(iter(highs.values())), next(iter(lows.values())), box=args.box, which=args.params,
+                  low_which=args.low_params)
     task = args.task or pol.meta["task"]
   elif highs and lows:
-    task = args.task or ckpt.load_meta(next(iter(highs.values())))["task"]
-    m = zero_shot_matrix(highs, lows, task, episodes=args.episodes, backend=args.backend, **overrides)
-    png = plots.heatmap(m, out / f"matrix_{task}.png")
+    first = next(iter(highs.values()))
+    task = args.task or ckpt.require(ckpt.load_meta(first), {"task": str}, first)["task"]
+    m = zero_shot_matrix(highs, lows, task, episodes=args.episodes, backend=args.backend, which=args.params,
+                         low_which=args.low_params, **overrides)
     rows = [[r] + [fmt(*m["cells"][(r, c)][:2]) for c in m["cols"]] for r in m["rows"]]
     table = markdown_table(["LL \\ HL"] + m["cols"], rows)
-    _write_json(out / f"matrix_{task}.json", dict(task=task, rows=m["rows"], cols=m["cols"],
-                cells={f"{r}|{c}": v for (r, c), v in m["cells"].items()}))
-    print(table + f"\n\nheatmap: {png}")
+    with rundir.claim(out, "eval", reuse=True):
+      png = plots.heatmap(m, out / f"matrix_{task}.png")
+      _write_json(out / f"matrix_{task}.json", dict(task=task, rows=m["rows"], cols=m["cols"],
+                  cells={f"{r}|{c}": v for (r, c), v in m["cells"].items()},
+                  params={f"{r}|{c}": dict(zip(("params", "low_params"), v)) for (r, c), v in m["params"].items()}))
+    print(table + f"\n\nparameters: HL {args.params}, LL {args.low_params} (see {out / f'matrix_{task}.json'})"
+          f"\nheatmap: {png}")
     return 0
   else:
     raise CLIError("give --high RUN and --low RUN (or several NAME=RUN of each for a matrix), or --policy RUN")
@@ -377,8 +423,10 @@ def cmd_eval(args) -> int:
            ", ".join(f"{x:.3g}" for x in ev["per_seed"][k.removesuffix("_mean")])]
           for k in ev if k.endswith("_mean")]
   print(markdown_table(["metric", "mean ± std over seeds", "per seed"], rows))
-  _write_json(out / f"eval_{task}.json", {k: v for k, v in ev.items() if k != "per_seed"}
-              | {"per_seed": {k: v.tolist() for k, v in ev["per_seed"].items()}, "task": task})
+  print("parameters: " + ", ".join(f"{k.replace('_', ' ')} {ev[k]}" for k in ("params", "low_params") if k in ev))
+  with rundir.claim(out, "eval", reuse=True):
+    _write_json(out / f"eval_{task}.json", {k: v for k, v in ev.items() if k != "per_seed"}
+                | {"per_seed": {k: v.tolist() for k, v in ev["per_seed"].items()}, "task": task})
   print(f"written: {out / f'eval_{task}.json'}")
   return 0
 
@@ -389,11 +437,29 @@ def _write_json(path: Path, obj) -> None:
   write_json_atomic(path, obj)
 
 
+def _grid_value(name: str, text: str, field: dataclasses.Field):
+  """One --grid value, of the SAC field's type (finite numbers; tuples are not swept)."""
+  import math
+  want = _field_type(field).get("type")
+  value = _parse_value(text.strip())
+  if _field_type(field).get("nargs"):
+    raise CLIError(f"--grid {name}: tuple fields cannot be swept; pass --{name.replace('_', '-')} per run")
+  if want is int:
+    ok = isinstance(value, int) and not isinstance(value, bool)
+  elif want is float:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+  else:
+    ok = bool(text.strip())
+  if not ok:
+    kind = {int: "an integer", float: "a finite number"}.get(want, "a value")
+    raise CLIError(f"--grid {name}={text!r}: expected {kind} for each comma-separated value, e.g. "
+                   f"{name}={field.default!r},{field.default!r}")
+  return value
+
+
 def cmd_sweep(args) -> int:
-  import numpy as np
-  from hdt.report import fmt, markdown_table
-  from hdt.transfer import checkpoint as ckpt
-  from hdt.transfer import pipeline
+  from hdt.report import markdown_table
+  from hdt.transfer import pipeline, rundir
   fields = {f.name: f for f in dataclasses.fields(SACConfig)}
   grid = {}
   for g in args.grid:
@@ -402,7 +468,9 @@ def cmd_sweep(args) -> int:
     name, values = g.split("=", 1)
     if name not in fields:
       raise CLIError(f"--grid {name}: not a SAC field; fields: {', '.join(fields)}")
-    grid[name] = [_parse_value(v) for v in values.split(",")]
+    if name in grid:
+      raise CLIError(f"--grid {name} is given twice: list all its values once, {name}=V1,V2,...")
+    grid[name] = [_grid_value(name, v, fields[name]) for v in values.split(",")]
   if not grid:
     raise CLIError("give at least one --grid FIELD=V1,V2")
   if args.level in ("low", "full") and not args.agent:
@@ -413,9 +481,23 @@ def cmd_sweep(args) -> int:
     raise CLIError("sweep high needs --low RUN")
   _check_agent_task(args.agent, args.task)
   overrides = _key_values(args.set, "--set")
-  root = args.out or Path(f"runs/sweep-{args.level}")
-  rows, seeds = [], _seeds(args)
-  k = ckpt.load_meta(args.low)["k"] if args.level == "high" else None
+  pipeline.check_env_overrides(overrides, args.agent, args.task or "reach")
+  root = _out_dir(args, f"sweep-{args.level}", kind="sweep")
+  seeds = _seeds(args)
+  k = pipeline.load_low(args.low)[1]["k"] if args.level == "high" else None
+  with rundir.claim(root, "sweep", overwrite=args.overwrite):
+    rows = _sweep(args, grid, root, seeds, k, overrides)
+    table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
+    (root / "sweep.md").write_text(table + "\n")
+  print(table)
+  return 0
+
+
+def _sweep(args, grid: dict, root: Path, seeds: int, k, overrides: dict) -> list:
+  import numpy as np
+  from hdt.report import fmt
+  from hdt.transfer import pipeline
+  rows = []
   for values in itertools.product(*grid.values()):
     point = dict(zip(grid, values))
     name = ",".join(f"{k_}={v}" for k_, v in point.items())
@@ -431,11 +513,7 @@ def cmd_sweep(args) -> int:
     metric = next((m for m in ("eval/success_max", "eval/return") if m in res.history), None)
     final = res.history[metric][:, -1]
     rows.append([name, metric[5:], fmt(np.mean(final), np.std(final)), str(out)])
-  table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
-  root.mkdir(parents=True, exist_ok=True)
-  (root / "sweep.md").write_text(table + "\n")
-  print(table)
-  return 0
+  return rows
 
 
 def load_experiment(name: str):
@@ -492,13 +570,18 @@ def cmd_report(args) -> int:
 
 def cmd_quickstart(args) -> int:
   """PM LL + HL on Waypoint, a small ant LL, and the PM HL transferred zero-shot to the ant."""
+  from hdt.transfer import rundir
+  root = _out_dir(args, "quickstart", kind="quickstart")
+  seeds, quiet = _seeds(args, 2), args.quiet
+  with rundir.claim(root, "quickstart", overwrite=args.overwrite):
+    return _quickstart(args, root, seeds, quiet)
+
+
+def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   from hdt.report import fmt, markdown_table, run_report
   from hdt.transfer import configs
   from hdt.transfer.evaluate import compose, evaluate
   from hdt.transfer.pipeline import train_high, train_low
-
-  root = args.out or Path("runs/quickstart")
-  seeds, quiet = _seeds(args, 2), args.quiet
   small = args.preset == "smoke"
   pm = dict(total_env_steps=2000 if small else 8000, num_envs=8, updates_per_step=8, steps_per_chunk=25 if small else 125)
   low = train_low("point", configs.low_config("point", **pm), seeds=seeds, out=root / "pm_low", quiet=quiet)
@@ -526,8 +609,27 @@ COMMANDS = {"train": cmd_train, "align": cmd_align, "finetune": cmd_finetune, "e
             "sweep": cmd_sweep, "reproduce": cmd_reproduce, "report": cmd_report, "quickstart": cmd_quickstart}
 
 
+def _one_line(e: BaseException) -> str:
+  return " ".join(str(e).split()) or type(e).__name__
+
+
+def _interrupted() -> str:
+  """The Ctrl-C message: where the run stands and how to continue it."""
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import rundir
+  run = rundir.LAST_CLAIMED[-1] if rundir.LAST_CLAIMED else None
+  if run is not None and ckpt.has_state(run):
+    return (f"interrupted; {run} keeps its last saved training state "
+            f"({ckpt.load_state_info(run).get('env_steps', '?')} env steps): run the same command with "
+            f"--resume to continue")
+  if run is not None:
+    return f"interrupted before {run} saved any training state: run the same command with --overwrite to start again"
+  return "interrupted; nothing was written"
+
+
 def main(argv=None) -> int:
   from hdt.transfer.checkpoint import CheckpointError
+  from hdt.transfer.rundir import RunDirError
   from hdt.agents.sharding import initialize_distributed
   from hdt.cache import enable_compile_cache
   try:
@@ -535,11 +637,28 @@ def main(argv=None) -> int:
     initialize_distributed()  # no-op unless HDT_DISTRIBUTED=1 (one process per host)
     enable_compile_cache()  # a re-run of the same configuration loads its programs
     return COMMANDS[args.cmd](args)
-  except CLIError as e:
-    print(f"error: {e}", file=sys.stderr)
+  except (CLIError, RunDirError) as e:
+    print(f"error: {_one_line(e)}", file=sys.stderr)
     return 2
   except (ValueError, CheckpointError, FileNotFoundError, FloatingPointError) as e:
-    print(f"hdt: error: {e}", file=sys.stderr)
+    print(f"hdt: error: {_one_line(e)}", file=sys.stderr)
+    return 1
+  except KeyboardInterrupt:
+    print(f"hdt: {_interrupted()}", file=sys.stderr)
+    return 130
+  except MemoryError:
+    print("hdt: error: out of memory; lower --seeds, --episodes, --buffer-size or --num-envs", file=sys.stderr)
+    return 1
+  except OSError as e:
+    print(f"hdt: error: {e.strerror or e} ({e.filename or 'file system'}); check the path and free space",
+          file=sys.stderr)
+    return 1
+  except Exception as e:  # a bug: still one line; HDT_DEBUG=1 shows the traceback
+    import os
+    if os.environ.get("HDT_DEBUG"):
+      raise
+    print(f"hdt: internal error: {type(e).__name__}: {_one_line(e)} (please report it; HDT_DEBUG=1 shows "
+          f"the traceback)", file=sys.stderr)
     return 1
 
 

@@ -56,6 +56,23 @@ def test_eval_and_report_hold_numbers(runs, capsys):
   assert "| return |" in capsys.readouterr().out
 
 
+def test_eval_of_best_params_says_so(runs, capsys):
+  """Each seed keeps its best periodic evaluation beside its final params; the HL trained over the
+  LL's best (as the authors compose) and records it; `hdt eval --params best` loads the HL's best."""
+  for name in ("low", "high"):
+    meta = json.loads((runs / name / "seed_1" / "meta.json").read_text())
+    assert (runs / name / "seed_1" / "best" / "params").is_dir() and meta["best"]["env_steps"] > 0
+  low_rec = json.loads((runs / "high" / "meta.json").read_text())["low"]
+  assert low_rec["params"] == "best" and low_rec["params_env_steps"] > 0
+  for which in ("best", "final"):
+    out = runs / f"eval-{which}"
+    assert main(["eval", "--high", str(runs / "high"), "--low", str(runs / "low"), "--episodes", "2",
+                 "--params", which, "--out", str(out)]) == 0
+    ev = json.loads((out / "eval_waypoint.json").read_text())
+    assert ev["params"] == which and ev["low_params"] == "best"
+    assert f"parameters: params {which}, low params best" in capsys.readouterr().out
+
+
 def test_eval_matrix_writes_heatmap(runs):
   out = runs / "matrix"
   assert main(["eval", "--high", f"pm={runs / 'high'}", "--high", f"pm2={runs / 'high'}", "--low", f"pm={runs / 'low'}",
@@ -77,6 +94,7 @@ def test_existing_run_is_not_overwritten(runs, capsys):
 def test_help_of_every_command():
   out = subprocess.run([sys.executable, "-m", "hdt.cli", "--help"], capture_output=True, text=True)
   assert out.returncode == 0 and all(c in out.stdout for c in COMMANDS)
+  assert "Failed to import" not in out.stdout + out.stderr  # mujoco.mjx's warp notice is muted
   for argv in (["train", "low"], ["train", "high"], ["train", "full"], ["align"], ["finetune"], ["eval"],
                ["sweep"], ["reproduce"], ["report"], ["quickstart"]):
     with pytest.raises(SystemExit) as e:
@@ -110,3 +128,258 @@ def test_missing_checkpoint_is_a_clear_error(tmp_path, capsys):
                str(tmp_path / "h"), "--preset", "smoke"]) == 1
   err = capsys.readouterr().err
   assert "does not exist" in err and not (tmp_path / "h").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# Bad inputs from the shell: one line naming the problem and the fix, a non-zero exit, no traceback,
+# and no pre-existing file changed (content hash of the whole tree, and nothing new in the cwd).
+
+import dataclasses  # noqa: E402
+import hashlib  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from hdt.transfer import checkpoint as ckpt  # noqa: E402
+
+
+def tree_hash(root: Path) -> dict:
+  return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir"
+          for p in sorted(root.rglob("*"))}
+
+
+@pytest.fixture(scope="module")
+def fakes(tmp_path_factory):
+  """Run directories written without training (the checks read their metadata), and things that are
+  not runs."""
+  from hdt.envs import make
+  from hdt.transfer import configs, pipeline
+  root = tmp_path_factory.mktemp("fakes")
+  cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=25, batch_size=16,
+                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
+  w = {"w": np.zeros((2,), np.float32)}
+  low_meta = pipeline.env_meta(make("point", "reach"), "low", cfg, env_overrides={})
+
+  def run(name, meta, seed_meta=None):
+    ckpt.save(root / name, 0, {"policy": w, "q": w}, dict(seed_meta or meta, seed=0))
+    ckpt.write_json_atomic(root / name / "meta.json", dict(meta, seeds=[0]))
+
+  run("low", low_meta)
+  run("high", low_meta | dict(level="high", task="waypoint", low=dict(path=str(root / "low"), seed_index=0)))
+  run("k0_low", low_meta | dict(k=0))
+  run("bad_types", low_meta, low_meta | dict(obs_size="x"))
+  run("missing_keys", low_meta, {k: v for k, v in low_meta.items() if k != "hidden_sizes"})
+  run("corrupt", low_meta)
+  run("mixed", low_meta)
+  ckpt.save(root / "mixed", 1, {"policy": w, "q": w}, dict(low_meta, seed=1))  # a stale seed of an older run
+  (root / "corrupt" / "seed_0" / "meta.json").write_text('{"level": "lo')
+  ckpt.save_state(root / "bad_state", w, {}, dict(config=["not", "a", "dict"], seeds=[0], meta=low_meta))
+  (root / "foreign").mkdir()
+  (root / "foreign" / "notes.txt").write_text("my thesis")
+  (root / "afile").write_text("not a directory")
+  return root
+
+
+LOW = ["train", "low", "--agent", "point", "--preset", "smoke", "--quiet"]
+HIGH = ["train", "high", "--task", "waypoint", "--preset", "smoke", "--quiet", "--low"]
+EVAL = ["eval", "--high", "{high}", "--low", "{low}", "--episodes", "2"]
+SWEEP = ["sweep", "low", "--agent", "point", "--preset", "smoke", "--quiet"]
+FRESH = ["--out", "{new}"]
+
+BAD_CLI = {
+    # where output goes
+    "empty --out": ([*LOW, "--out", ""], "--out is empty, which would write into the current directory"),
+    "blank --out": ([*LOW, "--out", "  "], "--out is empty"),
+    "--out not an hdt dir": ([*LOW, "--out", "{foreign}"], "is not an hdt directory and not empty (it holds notes.txt)"),
+    "--out is a file": ([*LOW, "--out", "{afile}"], "is an existing file"),
+    "--out under a file": ([*LOW, "--out", "{afile}/run"], "lies under the file"),
+    "--out system dir": ([*LOW, "--out", "/usr/hdt-run"], "is a system directory"),
+    "--out in /proc": ([*LOW, "--out", "/proc/hdt-run"], "is a system directory"),
+    "--out root": ([*LOW, "--out", "/"], "is a system directory"),
+    "existing run": ([*LOW, "--out", "{low}"], "already holds a run: pass --resume"),
+    "resume and overwrite": ([*LOW, "--out", "{low}", "--resume", "--overwrite"], "pass one of them"),
+    "resume nothing": ([*LOW, *FRESH, "--resume"], "holds no saved training state"),
+    "resume a run without state": ([*LOW, "--out", "{low}", "--resume"], "holds no saved training state"),
+    "resume damaged state.json": ([*LOW, "--out", "{bad_state}", "--resume"], "config=['not', 'a', 'dict']"),
+    "overwrite a foreign dir": ([*LOW, "--out", "{foreign}", "--overwrite"], "is not an hdt directory"),
+    "sweep into a run": ([*SWEEP, "--grid", "actor_lr=1e-3", "--out", "{low}"], "holds an hdt run directory where this command writes a sweep"),
+    "sweep into a foreign dir": ([*SWEEP, "--grid", "actor_lr=1e-3", "--out", "{foreign}"], "not an hdt directory"),
+    "quickstart into a foreign dir": (["quickstart", "--out", "{foreign}"], "not an hdt directory"),
+    "quickstart into a file": (["quickstart", "--out", "{afile}"], "is an existing file"),
+    "quickstart into a run": (["quickstart", "--out", "{low}"], "holds an hdt run directory where this command writes a quickstart"),
+    "eval --out a file": ([*EVAL, "--out", "{afile}"], "is an existing file"),
+    "eval --out foreign": ([*EVAL, "--out", "{foreign}"], "not an hdt directory"),
+    "eval --out a run": ([*EVAL, "--out", "{low}"], "holds an hdt run directory where this command writes an eval"),
+    # --set values
+    "--set not KEY=VALUE": ([*LOW, *FRESH, "--set", "gear"], "expected KEY=VALUE"),
+    "--set text for a number": ([*LOW, *FRESH, "--set", "delta_max=abc"], "delta_max='abc': expected a finite number > 0"),
+    "--set nan": ([*LOW, *FRESH, "--set", "delta_max=nan"], "delta_max='nan': expected a finite number"),
+    "--set inf": ([*LOW, *FRESH, "--set", "reset_prob=inf"], "reset_prob='inf': expected a finite number"),
+    "--set k=0 on an LL": ([*LOW, *FRESH, "--set", "k=0"], "k=0: expected an integer > 0"),
+    "--set fractional k": ([*LOW, *FRESH, "--set", "k=2.5"], "k=2.5: expected an integer"),
+    "--set negative box": ([*LOW, *FRESH, "--set", "delta_max=-1"], "delta_max=-1: expected a finite number > 0"),
+    "--set number for a name": ([*HIGH, "{low}", *FRESH, "--task", "maze", "--set", "goal=3"], "goal=3: expected str"),
+    "--set unknown option": ([*LOW, *FRESH, "--set", "wheels=4"], "unknown override"),
+    "--set on eval": ([*EVAL, *FRESH, "--set", "hl_horizon=0"], "hl_horizon=0: expected an integer > 0"),
+    # sizes and hyper-parameters
+    "zero seeds": ([*LOW, *FRESH, "--seeds", "0"], "--seeds 0"),
+    "negative seeds": ([*LOW, *FRESH, "--seeds", "-3"], "--seeds -3"),
+    "seeds beyond memory": ([*LOW, *FRESH, "--seeds", "1000000000"], "GiB of memory are available: lower the number of seeds"),
+    "buffer beyond memory": ([*LOW, *FRESH, "--buffer-size", "100000000000", "--batch-size", "16"], "GiB of memory"),
+    "episodes beyond memory": ([*EVAL, *FRESH, "--episodes", "1000000000000"], "lower the number of episodes"),
+    "zero episodes": ([*EVAL[:-2], *FRESH, "--episodes", "0"], "--episodes 0"),
+    "non-numeric batch": ([*LOW, *FRESH, "--batch-size", "many"], "invalid int value: 'many'"),
+    "zero batch": ([*LOW, *FRESH, "--batch-size", "0"], "batch_size=0: must be a positive integer"),
+    "zero learning rate": ([*LOW, *FRESH, "--actor-lr", "0"], "actor_lr=0.0: learning rates must be positive"),
+    "batch > buffer": ([*LOW, *FRESH, "--buffer-size", "8", "--batch-size", "16"], "batch_size=16 > buffer_size=8"),
+    "unknown preset": ([*LOW, *FRESH, "--preset", "huge"], "invalid choice: 'huge'"),
+    # agents, tasks, commands
+    "unknown command": (["frobnicate"], "invalid choice: 'frobnicate'"),
+    "missing agent": (["train", "low", *FRESH], "required: --agent"),
+    "unknown agent": (["train", "low", "--agent", "robot", *FRESH], "unknown agent 'robot'"),
+    "unknown task": ([*HIGH, "{low}", *FRESH, "--task", "juggle"], "unknown task 'juggle'"),
+    "unsupported pair": (["train", "full", "--agent", "point", "--task", "push1", *FRESH], "cannot run task 'push1'"),
+    # checkpoints handed between levels
+    "missing LL": ([*HIGH, "{new}/nope", "--out", "{new}/h"], "does not exist"),
+    "HL given as LL": ([*HIGH, "{high}", *FRESH], "where a low level was expected"),
+    "LL with k=0": ([*HIGH, "{k0_low}", *FRESH], "trained with k=0"),
+    "LL meta of wrong type": ([*HIGH, "{bad_types}", *FRESH], "has obs_size='x' (str)"),
+    "LL meta missing a key": ([*HIGH, "{missing_keys}", *FRESH], "has no 'hidden_sizes'"),
+    "corrupt LL meta": ([*HIGH, "{corrupt}", *FRESH], "corrupt checkpoint metadata"),
+    "HL --k 0": ([*HIGH, "{low}", *FRESH, "--k", "0"], "--k 0: give a positive number"),
+    "unknown --low-params": ([*HIGH, "{low}", *FRESH, "--low-params", "worst"], "invalid choice: 'worst'"),
+    "LL seed out of range": ([*HIGH, "{low}", *FRESH, "--low-seed", "3"], "no checkpoint for seed 3"),
+    "finetune from an LL": (["finetune", "--high", "{low}", "--low", "{low}", "--task", "waypoint", "--preset",
+                             "smoke", *FRESH], "finetune_high needs an HL"),
+    "negative KL": (["finetune", "--high", "{high}", "--low", "{low}", "--task", "waypoint", "--kl", "-1",
+                     "--preset", "smoke", *FRESH], "kl=-1.0: the KL weight must be"),
+    "align across families": (["align", "--agent", "arm3", "--imitate", "{low}", "--preset", "smoke", *FRESH],
+                              "goal spaces differ"),
+    "imitate an HL": (["align", "--agent", "point", "--imitate", "{high}", "--preset", "smoke", *FRESH],
+                      "where a low level was expected"),
+    # evaluation
+    "eval without runs": (["eval", "--task", "waypoint", *FRESH], "give --high RUN and --low RUN"),
+    "eval --policy and --high": (["eval", "--policy", "{low}", "--high", "{high}", *FRESH], "do not combine"),
+    "eval LL as HL": (["eval", "--high", "{low}", "--low", "{low}", *FRESH], "compose needs an HL"),
+    "eval unknown --params": ([*EVAL, *FRESH, "--params", "worst"], "invalid choice: 'worst'"),
+    "eval missing seeds": ([*EVAL, *FRESH, "--seeds", "5"], "pick seed indices of the policy"),
+    "eval unknown task": ([*EVAL, *FRESH, "--task", "nope"], "unknown task 'nope'"),
+    "eval corrupt LL": (["eval", "--high", "{high}", "--low", "{corrupt}", *FRESH], "corrupt checkpoint metadata"),
+    "eval a run with a stale seed": (["eval", "--high", "{high}", "--low", "{mixed}", *FRESH], "it mixes two runs"),
+    "eval meta missing a key": (["eval", "--high", "{high}", "--low", "{missing_keys}", *FRESH], "has no 'hidden_sizes'"),
+    # sweeps
+    "grid not a SAC field": ([*SWEEP, *FRESH, "--grid", "lr=1,2"], "not a SAC field"),
+    "grid text value": ([*SWEEP, *FRESH, "--grid", "actor_lr=abc"], "actor_lr='abc': expected a finite number"),
+    "grid empty value": ([*SWEEP, *FRESH, "--grid", "actor_lr="], "actor_lr='': expected a finite number"),
+    "grid trailing comma": ([*SWEEP, *FRESH, "--grid", "actor_lr=1e-3,"], "actor_lr='': expected"),
+    "grid nan": ([*SWEEP, *FRESH, "--grid", "actor_lr=nan"], "actor_lr='nan': expected a finite number"),
+    "grid fractional int": ([*SWEEP, *FRESH, "--grid", "batch_size=1.5"], "batch_size='1.5': expected an integer"),
+    "grid tuple field": ([*SWEEP, *FRESH, "--grid", "hidden_sizes=32"], "tuple fields cannot be swept"),
+    "grid field twice": ([*SWEEP, *FRESH, "--grid", "actor_lr=1e-3", "--grid", "actor_lr=1e-4"], "is given twice"),
+    "grid without =": ([*SWEEP, *FRESH, "--grid", "actor_lr"], "expected FIELD=V1,V2"),
+    "no grid": ([*SWEEP, *FRESH], "give at least one --grid"),
+    "sweep without agent": (["sweep", "low", "--grid", "actor_lr=1e-3", *FRESH], "sweep low needs --agent"),
+    "sweep high without LL": (["sweep", "high", "--task", "waypoint", "--grid", "actor_lr=1e-3", *FRESH],
+                              "sweep high needs --low"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_CLI))
+def test_bad_cli_input_is_one_line_and_changes_nothing(case, fakes, tmp_path, capsys, monkeypatch):
+  argv, fragment = BAD_CLI[case]
+  cwd = tmp_path / "cwd"
+  cwd.mkdir()
+  monkeypatch.chdir(cwd)  # default --out directories would appear here
+  names = {p.name: str(p) for p in fakes.iterdir()} | {"new": str(tmp_path / "new")}
+  argv = [a.format(**names) for a in argv]
+  before = tree_hash(fakes)
+  code = main(argv)
+  err = capsys.readouterr().err.strip()
+  assert code != 0 and fragment in err, err
+  assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+  assert "internal error" not in err, err  # each case has its own message, not the catch-all
+  assert tree_hash(fakes) == before
+  assert not (tmp_path / "new").exists() and not any(cwd.iterdir())
+
+
+def test_bad_cli_table_is_large():
+  assert len(BAD_CLI) >= 60
+
+
+# ------------------------------------------------------------------------------------------------
+# Resume, dependencies, sweep paths, Ctrl-C.
+
+import os  # noqa: E402
+import shutil  # noqa: E402
+import signal  # noqa: E402
+
+
+def test_cli_resumes_a_state_left_as_state_old(runs, tmp_path, capsys):
+  run = tmp_path / "low"
+  shutil.copytree(runs / "low", run)
+  os.replace(run / "state", run / "state.old")  # killed between the two renames of the last save
+  (run / "meta.json").unlink()
+  assert main(["train", "low", "--agent", "point", "--out", str(run), "--resume", *TINY_LOW]) == 0
+  assert (run / "meta.json").exists() and (run / "state").is_dir() and not (run / "state.old").exists()
+  assert ckpt.load(run, 1)[1]["seed"] == 1
+
+
+def _rewrite_low_path(high: Path, low: Path) -> None:
+  """Points a copied HL's recorded LL at a copied LL (same bytes, so the same content hash)."""
+  for path in [high / "meta.json", *high.glob("seed_*/meta.json"), high / "state" / "state.json"]:
+    obj = json.loads(path.read_text())
+    meta = obj["meta"] if "meta" in obj and path.name == "state.json" else obj
+    meta["low"]["path"] = str(low)
+    ckpt.write_json_atomic(path, obj)
+
+
+def test_eval_and_resume_refuse_an_hl_whose_ll_changed(runs, tmp_path, capsys):
+  low, high = tmp_path / "low", tmp_path / "high"
+  shutil.copytree(runs / "low", low)
+  shutil.copytree(runs / "high", high)
+  _rewrite_low_path(high, low)
+  ev = ["eval", "--high", str(high), "--low", str(low), "--episodes", "2", "--out", str(tmp_path / "ev")]
+  assert main(ev) == 0
+  seed_meta = low / "seed_0" / "meta.json"  # "retrain" the LL: its checkpoint's bytes change
+  ckpt.write_json_atomic(seed_meta, json.loads(seed_meta.read_text()) | {"retrained": True})
+  capsys.readouterr()
+  assert main(ev) == 1
+  err = capsys.readouterr().err.strip()
+  assert "changed after the HL" in err and "retrain the HL" in err and len(err.splitlines()) == 1
+  before = tree_hash(high)
+  assert main(["train", "high", "--task", "waypoint", "--low", str(low), "--out", str(high), "--resume",
+               *TINY_HIGH]) == 1
+  err = capsys.readouterr().err.strip()
+  assert "a checkpoint it depends on changed since it started (low content hash differs" in err, err
+  assert tree_hash(high) == before
+
+
+def test_named_runs_accept_paths_with_equals(tmp_path):
+  from hdt.cli import _named
+  sweep_run = tmp_path / "sweep" / "actor_lr=0.001,batch_size=16"
+  sweep_run.mkdir(parents=True)
+  assert _named([str(sweep_run)]) == {sweep_run.name: sweep_run}
+  assert _named([f"pm={sweep_run}"]) == {"pm": sweep_run}
+  assert _named(["pm=runs/x"]) == {"pm": Path("runs/x")}
+
+
+def test_ctrl_c_exits_130_with_a_resume_hint_and_no_traceback(tmp_path):
+  out = tmp_path / "run"
+  env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
+                                                      os.environ.get("PYTHONPATH", "")]))
+  argv = [sys.executable, "-m", "hdt.cli", "train", "low", "--agent", "point", "--out", str(out),
+          *[a for a in TINY_LOW if a != "--quiet"], "--total-env-steps", "80000"]
+  p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+  try:
+    for line in iter(p.stderr.readline, ""):
+      if "steps" in line and "ETA" in line and ckpt.has_state(out):
+        break
+    p.send_signal(signal.SIGINT)
+    _, rest = p.communicate(timeout=300)
+  finally:
+    p.kill()
+  assert p.returncode == 130, rest
+  lines = [l for l in rest.strip().splitlines() if "ETA" not in l]
+  assert len(lines) == 1 and "Traceback" not in rest, rest
+  assert lines[0].startswith("hdt: interrupted;") and "--resume" in lines[0] and str(out) in lines[0]
+  assert ckpt.has_state(out) and not list(out.glob(".*.tmp")) and "Failed to import" not in rest

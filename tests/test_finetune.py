@@ -221,8 +221,8 @@ def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypat
   # An HL whose obs size does not fit the env: fake it through its metadata.
   real_load_all = ckpt.load_all
 
-  def bad_load_all(run):
-    p, metas = real_load_all(run)
+  def bad_load_all(run, *args):
+    p, metas = real_load_all(run, *args)
     return p, [dict(m, obs_size=m["obs_size"] + 3) for m in metas]
 
   monkeypatch.setattr(ckpt, "load_all", bad_load_all)

@@ -7,6 +7,7 @@ a 2-core CPU); the wiring of the public ``resume=`` keyword is checked by the va
 """
 
 import dataclasses
+import hashlib
 import json
 import os
 import signal
@@ -65,7 +66,7 @@ def assert_trees_equal(a, b):
 def saved_state(run_dir, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN):
   trainer = sac_train.make_train(env, config, **plugins)
   template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(list(seeds)))
-  return ckpt.load_state(run_dir, template)
+  return ckpt.load_state(run_dir, template)[:3]
 
 
 @pytest.fixture(scope="module")
@@ -110,6 +111,42 @@ def test_resume_equals_uninterrupted_run(uninterrupted, resumed):
   assert_trees_equal(ts_b.agent.policy_params, resumed.params["policy"])
   params, _ = ckpt.load(resumed.run_dir, 1)
   assert_trees_equal(params["policy"], jax.tree.map(lambda x: np.asarray(x[1]), resumed.params["policy"]))
+
+
+def test_best_evaluation_params_survive_resume(uninterrupted, resumed):
+  """The best-of-evaluation record (policy, q, return, env step per seed) of a resumed run equals the
+  uninterrupted run's: it is part of the saved state, and it is saved beside the final params."""
+  assert_trees_equal(resumed.best, uninterrupted.best)
+  ev, steps = uninterrupted.history["eval/return"][:, 1:], uninterrupted.history["eval/env_steps"][:, 1:]
+  first_max = np.argmax(ev, axis=1)  # argmax takes the earliest of ties, as update_best
+  np.testing.assert_array_equal(resumed.best["env_steps"], steps[np.arange(2), first_max])
+  np.testing.assert_array_equal(resumed.best["return"], ev[np.arange(2), first_max])
+  for i in range(2):
+    params, meta = ckpt.load(resumed.run_dir, i, which="best")
+    assert meta["params"] == "best" and meta["params_env_steps"] == meta["best"]["env_steps"] == \
+        int(resumed.best["env_steps"][i])
+    assert_trees_equal(params, jax.tree.map(lambda x: np.asarray(x[i]), {k: resumed.best[k] for k in ("policy", "q")}))
+    assert ckpt.load(resumed.run_dir, i)[1]["params"] == "final"
+
+
+def test_best_params_are_those_of_the_best_evaluation(tmp_path):
+  """update_best keeps, per seed, exactly the params evaluated at the highest mean eval return."""
+  cfg = dataclasses.replace(CFG, total_env_steps=600)
+  seen = {}
+
+  def on_chunk(step, ts, hist, best):
+    seen[step] = jax.device_get({"policy": ts.agent.policy_params, "q": ts.agent.q_params})
+
+  res = sac_train.run(ENV, cfg, [0, 3], on_chunk=on_chunk)
+  ev, steps = res.history["eval/return"][:, 1:], res.history["eval/env_steps"][:, 1:]
+  for i in range(2):
+    at = int(steps[i, np.argmax(ev[i])])
+    assert res.best["env_steps"][i] == at and res.best["return"][i] == ev[i].max()
+    assert_trees_equal({k: jax.tree.map(lambda x: x[i], res.best[k]) for k in ("policy", "q")},
+                       jax.tree.map(lambda x: np.asarray(x[i]), seen[at]))
+  # the record only moves up, and a NaN score never wins
+  nan = sac_train.update_best(res.best, seen[at], np.array([np.nan, -np.inf]), 10**6)
+  assert_trees_equal(nan, res.best)
 
 
 def test_same_config_and_seed_give_identical_metrics(uninterrupted, tmp_path):
@@ -251,7 +288,7 @@ def test_sigkill_during_save_leaves_previous_checkpoint_loadable(tmp_path):
       params, meta = ckpt.load(run, 0)
       assert meta["value"] == 1.0
     else:
-      params, hist, meta = ckpt.load_state(run, template)
+      params, hist, meta = ckpt.load_state(run, template)[:3]
       assert meta["value"] == 1.0 and np.all(hist["critic_loss"] == 1.0)
     np.testing.assert_array_equal(params["w"], np.ones((3, 4), np.float32))
     # The next save completes and clears the leftovers of the killed one.
@@ -347,6 +384,9 @@ def runs(tmp_path_factory):
   ckpt.save_state(root / "point_state", w, {}, dict(config=dataclasses.asdict(PCFG), seeds=[0],
                                                     meta=metas["point_low"]))
   (root / "a_file").write_text("not a run directory")
+  (root / "foreign").mkdir()
+  (root / "foreign" / "notes.txt").write_text("not hdt's")
+  ckpt.save(root / "no_hidden", 0, {"policy": w}, {k: v for k, v in metas["point_low"].items() if k != "hidden_sizes"})
   return root
 
 
@@ -429,11 +469,33 @@ BAD_INPUTS = {
                               "unknown task 'nope'"),
     "evaluate missing seed": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), seeds=[2]),
                               "seeds=\\[2\\]: pick seed indices of the policy, in 0..0"),
+    # run directories and sizes
+    "empty out": (lambda r: lambda out: train_low("point", PCFG, out=""), "out is empty, which would write into the current"),
+    "out under a file": (lambda r: lambda out: train_low("point", PCFG, out=r / "a_file" / "run"), "lies under the file"),
+    "out a system dir": (lambda r: lambda out: train_low("point", PCFG, out="/etc/hdt"), "is a system directory"),
+    "out an existing run": (lambda r: lambda out: train_low("point", PCFG, out=r / "point_state"),
+                            "already holds a run: pass --resume \\(resume=True\\)"),
+    "out not an hdt dir": (lambda r: lambda out: train_low("point", PCFG, out=r / "foreign", overwrite=True),
+                           "is not an hdt directory and not empty \\(it holds notes.txt\\)"),
+    "resume and overwrite": (lambda r: _low(r, resume=True, overwrite=True), "resume and overwrite exclude each other"),
+    "seeds beyond memory": (lambda r: _low(r, seeds=10**9), "GiB of memory are available: lower the number of seeds"),
+    "override of wrong type": (lambda r: _low(r, delta_max="abc"), "option delta_max='abc': expected a finite number > 0"),
+    "override k=0": (lambda r: _low(r, k=0), "option k=0: expected an integer > 0"),
+    "unknown low_params": (lambda r: lambda out: train_high("waypoint", r / "point_low", low_params="worst", out=out),
+                           "low_params='worst': load the 'final' parameters or the 'best'"),
+    "unknown which": (lambda r: lambda out: compose(r / "point_high", r / "point_low", which="last"),
+                      "which='last': load the 'final' parameters"),
+    "LL meta missing a key": (lambda r: lambda out: train_high("waypoint", r / "no_hidden", out=out),
+                              "has no 'hidden_sizes': the file was edited or damaged"),
+    "episodes beyond memory": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), episodes=10**12),
+                               "lower the number of episodes"),
 }
 
 
 def _snapshot(root: Path) -> dict:
-  return {str(p.relative_to(root)): (p.stat().st_mtime_ns, p.stat().st_size) for p in root.rglob("*")}
+  """Content hash of every file and directory name in the tree (what a refused call must not change)."""
+  return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir"
+          for p in root.rglob("*")}
 
 
 @pytest.mark.parametrize("case", list(BAD_INPUTS))
@@ -445,3 +507,124 @@ def test_bad_input_fails_clearly_and_writes_nothing(case, runs, tmp_path):
     make_call(runs)(out)
   assert not out.exists()
   assert _snapshot(runs) == before
+
+
+# ------------------------------------------------------------------------------------------------
+# Run directories: ownership, overwrite, locks, every state a kill can leave.
+
+import shutil  # noqa: E402
+
+from hdt.transfer import rundir  # noqa: E402
+
+SMALL = dataclasses.replace(CFG, total_env_steps=200)
+
+
+def test_overwrite_replaces_the_whole_run_and_never_mixes_seeds(uninterrupted, tmp_path):
+  run = tmp_path / "run"
+  shutil.copytree(uninterrupted.run_dir, run)
+  assert ckpt.list_seeds(run) == [0, 1] and (run / "tb" / "seed_3").is_dir()
+  (run / "seed_1" / "stale.txt").write_text("from the old run")
+  with pytest.raises(rundir.RunDirError, match="already holds a run: pass --resume .* --overwrite"):
+    train(run, config=SMALL, seeds=[5], plugins={})
+  res = train(run, config=SMALL, seeds=[5], plugins={}, overwrite=True)
+  assert ckpt.list_seeds(run) == [0] and not (run / "seed_1").exists()
+  assert sorted(p.name for p in (run / "tb").iterdir()) == ["seed_5"]
+  assert json.loads((run / "meta.json").read_text())["seeds"] == [5]
+  assert not list(tmp_path.glob(".run.replaced-*"))  # the old run is gone, not parked
+  assert_trees_equal(ckpt.load(run, 0)[0]["policy"], jax.tree.map(lambda x: np.asarray(x[0]), res.params["policy"]))
+
+
+def test_directories_hdt_does_not_own_are_refused_even_with_overwrite(tmp_path):
+  foreign = tmp_path / "data"
+  foreign.mkdir()
+  (foreign / "config.json").write_text("{}")
+  (foreign / "seed_0").mkdir()
+  before = _snapshot(tmp_path)
+  for kw in ({}, {"overwrite": True}):
+    with pytest.raises(rundir.RunDirError, match=r"not an hdt directory and not empty \(it holds config.json, seed_0/\)"):
+      train(foreign, config=SMALL, plugins={}, **kw)
+  assert _snapshot(tmp_path) == before
+
+
+_HOLD_LOCK = textwrap.dedent("""
+    import sys, time
+    from hdt.transfer import rundir
+    with rundir.claim(sys.argv[1]):
+      print("LOCKED", flush=True)
+      time.sleep(600)
+""")
+
+
+def test_a_second_writer_is_refused_naming_the_pid_and_a_dead_holder_is_taken_over(tmp_path, capsys):
+  from hdt.cli import main
+  run = tmp_path / "run"
+  env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
+                                                      os.environ.get("PYTHONPATH", "")]))
+  p = subprocess.Popen([sys.executable, "-c", _HOLD_LOCK, str(run)], stdout=subprocess.PIPE, text=True, env=env)
+  try:
+    assert any(line.strip() == "LOCKED" for line in iter(p.stdout.readline, ""))
+    with pytest.raises(rundir.RunDirError, match=f"is in use by PID {p.pid}, which is writing to it"):
+      train(run, config=SMALL, plugins={})
+    assert main(["train", "low", "--agent", "point", "--preset", "smoke", "--quiet", "--out", str(run),
+                 "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"in use by PID {p.pid}" in err and len(err.splitlines()) == 1
+  finally:
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait(timeout=60)
+  res = train(run, config=SMALL, plugins={})  # the dead process's lock is taken over
+  assert ckpt.list_seeds(res.run_dir) == [0, 1]
+
+
+def test_resume_from_every_state_a_kill_can_leave(uninterrupted, tmp_path):
+  """state/ (tested above), state.old (killed between the two renames), and only a temporary
+  directory (killed during the first save: nothing to resume, a fresh start needs no --overwrite)."""
+  run = tmp_path / "run"
+  shutil.copytree(uninterrupted.run_dir, run)
+  os.replace(run / "state", run / "state.old")
+  (run / "meta.json").unlink()  # as if killed before the run's outputs were written
+  assert ckpt.has_state(run)
+  res = train(run, resume=True)
+  assert_trees_equal(res.params, uninterrupted.params)
+  assert_trees_equal(res.best, uninterrupted.best)
+  fresh = tmp_path / "fresh"
+  fresh.mkdir()
+  (fresh / rundir.MARKER).write_text('{"kind": "run"}')
+  (fresh / ".state.abc.tmp").mkdir()
+  assert not ckpt.has_state(fresh)
+  with pytest.raises(ckpt.CheckpointError, match="no saved training state"):
+    train(fresh, resume=True)
+  assert rundir.check_claimable(fresh) == fresh  # hdt's own leftovers only: counts as empty
+
+
+def test_ctrl_c_during_a_save_finishes_the_save_first(tmp_path):
+  """SIGINT while a checkpoint is written is delivered after it: no partial checkpoint."""
+  run = tmp_path / "run"
+  real = ckpt.write_json_atomic
+
+  def interrupted_write(path, obj):
+    if Path(path).name == "meta.json" and "seed_index" in obj:
+      os.kill(os.getpid(), signal.SIGINT)
+    real(path, obj)
+
+  mp = pytest.MonkeyPatch()
+  mp.setattr(ckpt, "write_json_atomic", interrupted_write)
+  try:
+    with pytest.raises(KeyboardInterrupt):
+      with rundir.deferred_interrupt():
+        ckpt.save(run, 0, {"w": np.ones(3, np.float32)}, {"level": "low"})
+  finally:
+    mp.undo()
+  assert ckpt.load(run, 0)[1]["level"] == "low"
+
+
+def test_mujoco_warnings_are_counted_not_printed(capfd):
+  import jax.numpy as jnp
+  env = make("ant", "reach")
+  s = env.reset(jax.random.PRNGKey(0))
+  s = s.replace(physics=jax.tree.map(lambda x: x * 1e30 if jnp.issubdtype(x.dtype, jnp.floating) else x, s.physics))
+  with pipeline.counted_mujoco_warnings() as warned:
+    jax.block_until_ready(jax.jit(env.step)(s, jnp.full(env.action_size, 1e30)))
+  out, err = capfd.readouterr()
+  assert warned and "unstable" in warned[0] and "WARNING" not in out + err.replace("simulation warning", "")
+  assert len(err.strip().splitlines()) == 1 and err.startswith(f"MuJoCo reported {len(warned)} simulation warning")

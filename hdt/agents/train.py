@@ -401,6 +401,31 @@ class RunResult(NamedTuple):
   params: dict  # {"policy": ..., "q": ...}, leading axis = seeds
   history: dict  # name -> np.ndarray, leading axis = seeds
   state: TrainState  # final TrainState (leading axis = seeds), for checkpointing / resuming
+  best: dict | None = None  # see :func:`update_best`
+
+
+# Model selection as the authors did (bot_transfer/utils/trainer.py callback): after each periodic
+# evaluation, a seed whose mean deterministic eval return beats its best so far keeps those params.
+BEST_CRITERION = "eval/return"
+
+
+def empty_best(params: dict) -> dict:
+  """The best-so-far record before any evaluation: ``params`` ({"policy", "q"}, seed axis; arrays
+  or ShapeDtypeStructs) with ``return`` -inf and ``env_steps`` -1 per seed."""
+  n = jax.tree.leaves(params)[0].shape[0]
+  return dict(params, **{"return": np.full(n, -np.inf, np.float32), "env_steps": np.full(n, -1, np.int32)})
+
+
+def update_best(best: dict, params: dict, score: np.ndarray, step: int) -> dict:
+  """Per seed, ``params`` and ``score`` replace the record where ``score`` is strictly higher
+  (the earliest evaluation wins ties; NaN never wins). Host numpy in and out."""
+  better = np.asarray(score) > best["return"]
+  if not better.any():
+    return best
+  pick = lambda old, new: np.where(better.reshape(better.shape + (1,) * (np.ndim(new) - 1)), new, old)
+  out = {k: jax.tree.map(pick, best[k], jax.tree.map(np.asarray, params[k])) for k in params}
+  return dict(out, **{"return": pick(best["return"], np.asarray(score, np.float32)),
+                      "env_steps": pick(best["env_steps"], np.full(better.shape, step, np.int32))})
 
 
 def seed_list(seeds: int | Sequence[int]) -> list[int]:
@@ -465,7 +490,8 @@ def run(
     eval_at_start: bool = True,
     trainer: Trainer | None = None,
     initial_history: dict | None = None,
-    on_chunk: Callable[[int, TrainState, dict], None] | None = None,
+    initial_best: dict | None = None,
+    on_chunk: Callable[[int, TrainState, dict, dict | None], None] | None = None,
     **plugins,
 ) -> RunResult:
   """Trains ``len(seeds)`` seeds in lock-step (vmapped) and returns params and history.
@@ -485,9 +511,11 @@ def run(
   initial_history: the history (as returned in RunResult.history) of the run ``initial_state``
     came from; the new records are appended to it, so a resumed run returns the same history as
     an uninterrupted one.
-  on_chunk(env_steps, ts, history): called after every chunk (and its evaluation) with the new
-    TrainState and the history so far (name -> list of per-seed arrays), before ``progress_fn``;
-    e.g. to save resumable state. ``ts`` is donated to the next chunk: copy what you keep.
+  initial_best: the ``best`` record (RunResult.best) of the run ``initial_state`` came from.
+  on_chunk(env_steps, ts, history, best): called after every chunk (and its evaluation) with the
+    new TrainState, the history so far (name -> list of per-seed arrays) and the best record,
+    before ``progress_fn``; e.g. to save resumable state. ``ts`` is donated to the next chunk:
+    copy what you keep.
   plugins: forwarded to :func:`make_train` (actor_regularizer, reward_fn, aux_init, ...).
 
   After every chunk the loss terms and parameters are checked (flags computed inside the jitted
@@ -496,6 +524,10 @@ def run(
 
   History: training metrics have shape (seeds, chunks) (``env_steps`` says where);
   ``eval/...`` entries have shape (seeds, evaluations) (``eval/env_steps`` says where).
+
+  Best: per seed, the policy and q params of the evaluation with the highest mean eval return so
+  far (:func:`update_best`; host numpy, seed axis), with its ``return`` and ``env_steps``. Only
+  evaluations after a chunk count: the one at the start evaluates a policy this run did not train.
   """
   seeds = seed_list(seeds)
   chunk_steps = config.env_steps_per_chunk
@@ -533,13 +565,25 @@ def run(
                            for k, v in (initial_history or {}).items()}
   t_offset = float(hist["walltime"][-1].max()) if hist.get("walltime") else 0.0
 
+  def current_params():
+    return {"policy": ts.agent.policy_params, "q": ts.agent.q_params}
+
+  best = initial_best
+
   def evaluate(index, step):
+    nonlocal best
     k = jax.vmap(eval_key, in_axes=(0, None))(keys, index)
     ev = sharding_lib.to_host(eval_fn(ts.agent.policy_params, k))
     ev = {f"eval/{name}": np.asarray(v) for name, v in ev.items()}
     ev["eval/env_steps"] = np.full(len(seeds), step)
     for name, v in ev.items():
       hist.setdefault(name, []).append(v)
+    if index > start_chunk:  # not the evaluation at the start
+      score = ev[BEST_CRITERION]
+      if best is None:
+        best = empty_best(sharding_lib.to_host(current_params()))
+      if np.any(score > best["return"]):  # copy params off the device only when one improved
+        best = update_best(best, sharding_lib.to_host(current_params()), score, step)
     return ev
 
   if eval_at_start:
@@ -557,10 +601,10 @@ def run(
     if step % eval_every == 0 or c == config.num_chunks - 1:
       m.update(evaluate(c + 1, step))
     if on_chunk is not None:
-      on_chunk(step, ts, hist)
+      on_chunk(step, ts, hist, best)
     if progress_fn is not None:
       progress_fn(step, m)
 
   history = {k: np.stack(v, axis=1) for k, v in hist.items()}  # (seeds, records, ...)
   params = {"policy": ts.agent.policy_params, "q": ts.agent.q_params}
-  return RunResult(params=params, history=history, state=ts)
+  return RunResult(params=params, history=history, state=ts, best=best)

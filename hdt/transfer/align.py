@@ -22,7 +22,8 @@ from hdt.transfer.pipeline import RunResult, _run, env_meta, load_low
 def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
               disc: DiscConfig = DiscConfig(), seeds=1, out=None, n_offline: int = 20_000,
               backend: str = "auto", quiet: bool = False, imitate_seed: int = 0,
-              offline_seed: int = 0, resume=False, save_every=None, **env_overrides) -> RunResult:
+              offline_seed: int = 0, resume=False, save_every=None, overwrite=False,
+              **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` aligned to the LL saved in ``imitate`` (agent A).
 
   A's data (``disc.data``): "offline" (default, as the paper's main results and the authors' README,
@@ -56,10 +57,11 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
                                  tau_scale=tau_scale)
   meta = dict(meta, aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
                                     n_offline=int(n_offline) if disc.data == "offline" else 0,
-                                    offline_seed=offline_seed, tau_scale=tau_scale),
+                                    offline_seed=offline_seed, tau_scale=tau_scale,
+                                    sha256=ckpt.content_hash(imitate, imitate_seed)),
               discriminator=dataclasses.asdict(disc))
   return _run(env, config, seeds, out, meta, quiet, f"align {agent}<-{meta_a['agent']}",
-              resume, save_every, **al.plugins,
+              resume, save_every, overwrite=overwrite, **al.plugins,
               # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
               save_extra=lambda ts: {"discriminator": ts.aux["params"]})
 

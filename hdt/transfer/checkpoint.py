@@ -1,7 +1,9 @@
 """Checkpoints: orbax for the parameter pytree, JSON for the metadata that makes a hand-off safe.
 
 A run directory holds ``config.json``, ``meta.json``, ``metrics.csv`` and one sub-directory per seed
-(``seed_0``, ``seed_1``, ...), each with ``params/`` (orbax) and its own ``meta.json``, and
+(``seed_0``, ``seed_1``, ...), each with ``params/`` (orbax, the final parameters), ``best/params/``
+(those of the best periodic evaluation; ``meta["best"]`` says which env step and return) and its
+own ``meta.json``, and
 ``state/``: the resumable training state (``arrays/`` orbax, ``state.json``). Each of these
 directories is written under a temporary name and renamed into place, so a save killed at any point
 (tested with SIGKILL) leaves the previous version loadable. Metadata carries ``format_version``;
@@ -11,12 +13,13 @@ saying what to do.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import numpy as np
@@ -84,14 +87,23 @@ def _resolve(d: Path) -> Path | None:
   return old if old.exists() else None
 
 
-def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict) -> Path:
-  """Atomically write one seed's parameters and metadata into ``run_dir/seed_<i>``."""
+WHICH = ("final", "best")
+
+
+def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
+         best: tuple[Any, dict] | None = None) -> Path:
+  """Atomically write one seed's parameters and metadata into ``run_dir/seed_<i>``; ``best`` =
+  (params, info) of the best periodic evaluation goes to ``best/params`` and ``meta["best"]``."""
   run_dir = Path(run_dir).resolve()  # orbax wants absolute paths
   params = jax.tree.map(np.asarray, jax.device_get(params))
   meta = dict(meta, format_version=FORMAT_VERSION, hdt_version=hdt.__version__, seed_index=seed_index)
+  if best is not None:
+    meta["best"] = best[1]
 
   def write(tmp: Path):
     ocp.PyTreeCheckpointer().save(tmp / "params", params)
+    if best is not None:
+      ocp.PyTreeCheckpointer().save(tmp / "best" / "params", jax.tree.map(np.asarray, best[0]))
     write_json_atomic(tmp / "meta.json", meta)
 
   return _atomic_dir(seed_dir(run_dir, seed_index), write)
@@ -104,6 +116,49 @@ def _resolve_seed_dir(run_dir: Path, seed_index: int) -> Path:
                           f"{seed_dir(run_dir, seed_index)}); seeds present: "
                           f"{list_seeds(run_dir) or 'none'}")
   return d
+
+
+def content_hash(run_dir: str | Path, seed_index: int | None = None) -> str:
+  """sha256 over the files (relative names and bytes) of one seed's checkpoint, or of every seed's:
+  recorded by runs that depend on a checkpoint, so resuming or evaluating them after it changed
+  (e.g. the LL was retrained) is refused."""
+  dirs = ([_resolve_seed_dir(Path(run_dir), seed_index)] if seed_index is not None
+          else [_resolve_seed_dir(Path(run_dir), s) for s in list_seeds(run_dir)])
+  h = hashlib.sha256()
+  for d in dirs:
+    for f in sorted(p for p in d.rglob("*") if p.is_file()):
+      h.update(str(f.relative_to(d)).encode() + b"\0")
+      h.update(f.read_bytes())
+  return h.hexdigest()
+
+
+def require(meta: dict, fields: dict[str, type | tuple], where: str | Path) -> dict:
+  """``meta`` if each of ``fields`` is present with the given type(s), else a one-line CheckpointError."""
+  for key, types in fields.items():
+    if key not in meta:
+      problem = f"has no {key!r}"
+    elif not isinstance(meta[key], types) or (isinstance(meta[key], bool) and
+                                              bool not in (types if isinstance(types, tuple) else (types,))):
+      problem = f"has {key}={meta[key]!r} ({type(meta[key]).__name__})"
+    else:
+      continue
+    raise CheckpointError(f"checkpoint metadata in {where} {problem}: the file was edited or damaged; "
+                          f"re-run training, or restore it from a backup")
+  return meta
+
+
+def has_state(run_dir: str | Path) -> bool:
+  """Whether ``run_dir`` holds a complete resumable state (``state/``, or ``state.old`` after a kill
+  between the two renames of a save)."""
+  return _resolve(state_dir(run_dir)) is not None
+
+
+def settle_state(run_dir: str | Path) -> None:
+  """Completes a save killed between its two renames (``state.old`` but no ``state/``); call it
+  only while holding the run directory's lock."""
+  d = state_dir(run_dir)
+  if not d.exists() and _resolve(d) is not None:
+    os.replace(_resolve(d), d)
 
 
 def list_seeds(run_dir: str | Path) -> list[int]:
@@ -149,24 +204,52 @@ def _read_meta(path: Path) -> dict:
   return meta
 
 
-def load(run_dir: str | Path, seed_index: int = 0) -> tuple[Any, dict]:
-  """Returns (params, meta) of one seed."""
+def check_which(which: str, what: str = "which") -> str:
+  if which not in WHICH:
+    raise ValueError(f"{what}={which!r}: load the 'final' parameters or the 'best' (those of the best "
+                     f"periodic evaluation)")
+  return which
+
+
+def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tuple[Any, dict]:
+  """Returns (params, meta) of one seed: its final parameters, or with ``which="best"`` those of
+  its best periodic evaluation. As the authors' loader, "best" falls back to the final parameters
+  of a checkpoint that has none; ``meta["params"]`` says which were loaded and
+  ``meta["params_env_steps"]`` after how many env steps."""
+  check_which(which)
   meta = load_meta(run_dir, seed_index)
   d = _resolve_seed_dir(Path(run_dir).resolve(), seed_index)
+  use = "best" if which == "best" and isinstance(meta.get("best"), dict) else "final"
+  path = d / "params" if use == "final" else d / "best" / "params"
   try:
-    params = ocp.PyTreeCheckpointer().restore(d / "params")
+    params = ocp.PyTreeCheckpointer().restore(path)
   except Exception as e:  # orbax raises several types for damaged files
-    raise CheckpointError(f"corrupt checkpoint parameters in {d / 'params'} ({type(e).__name__}: "
+    raise CheckpointError(f"corrupt checkpoint parameters in {path} ({type(e).__name__}: "
                           f"{e}); re-run training, or restore the directory from a backup") from e
-  return params, meta
+  steps = meta["best"].get("env_steps") if use == "best" else (meta.get("sac") or {}).get("total_env_steps")
+  return params, dict(meta, params=use, params_env_steps=steps)
 
 
-def load_all(run_dir: str | Path) -> tuple[Any, list[dict]]:
-  """All seeds of a run, parameters stacked on a leading seed axis."""
+def params_label(metas: list[dict]) -> str:
+  """Which parameters a list of per-seed metas (from :func:`load`) holds: "final", "best", or
+  "mixed: ..." per seed when some seeds had no best."""
+  used = [m.get("params", "final") for m in metas]
+  return used[0] if len(set(used)) == 1 else "mixed: " + ", ".join(used)
+
+
+def load_all(run_dir: str | Path, which: str = "final") -> tuple[Any, list[dict]]:
+  """All seeds of a run, parameters stacked on a leading seed axis (``which``: as in :func:`load`)."""
   seeds = list_seeds(run_dir)
   if not seeds:
     raise CheckpointError(f"no seed checkpoints (seed_0/, ...) in {run_dir}")
-  loaded = [load(run_dir, s) for s in seeds]
+  try:  # a run's meta.json lists its seeds: a checkpoint beyond them is left over from another run
+    declared = json.loads((Path(run_dir) / "meta.json").read_text()).get("seeds")
+  except (OSError, ValueError, AttributeError):
+    declared = None
+  if isinstance(declared, list) and seeds != list(range(len(declared))):
+    raise CheckpointError(f"{run_dir} holds checkpoints seed_{', seed_'.join(map(str, seeds))} but its meta.json "
+                          f"lists {len(declared)} seed(s): it mixes two runs; re-train it with --overwrite")
+  loaded = [load(run_dir, s, which) for s in seeds]
   params = jax.tree.map(lambda *x: np.stack(x), *[p for p, _ in loaded])
   return params, [m for _, m in loaded]
 
@@ -188,19 +271,28 @@ def _leaf_specs(named) -> list[list]:
   return [[name, list(x.shape), str(np.dtype(x.dtype))] for name, x in named]
 
 
-def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], info: dict) -> Path:
-  """Atomically write ``tree`` (any pytree of arrays, e.g. a TrainState), ``history`` (name ->
-  array) and the JSON ``info`` (config, run metadata, ...) into ``run_dir/state``. The previous
-  state stays loadable until the new one is complete."""
-  run_dir = Path(run_dir).resolve()
+def _named_leaves(tree) -> list[tuple[str, np.ndarray]]:
   flat, _ = jax.tree_util.tree_flatten_with_path(jax.device_get(tree))
-  leaves = [(jax.tree_util.keystr(path), np.asarray(x)) for path, x in flat]
+  return [(jax.tree_util.keystr(path), np.asarray(x)) for path, x in flat]
+
+
+def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], info: dict,
+               best: Any = None) -> Path:
+  """Atomically write ``tree`` (any pytree of arrays, e.g. a TrainState), ``history`` (name ->
+  array), the best-evaluation record ``best`` (a pytree, or None) and the JSON ``info`` (config,
+  run metadata, ...) into ``run_dir/state``. The previous state stays loadable until the new one
+  is complete."""
+  run_dir = Path(run_dir).resolve()
+  leaves = _named_leaves(tree)
   hist = [(k, np.asarray(v)) for k, v in history.items()]
+  best_leaves = [] if best is None else _named_leaves(best)
   # orbax keys must be plain names: index them, and keep the real names in state.json
-  arrays = {"state": {f"{i:05d}": x for i, (_, x) in enumerate(leaves)},
-            "history": {f"{i:05d}": x for i, (_, x) in enumerate(hist)}}
+  index = lambda named: {f"{i:05d}": x for i, (_, x) in enumerate(named)}
+  arrays = {"state": index(leaves), "history": index(hist), "best": index(best_leaves)}
   info = dict(info, format_version=FORMAT_VERSION, hdt_version=hdt.__version__, kind="train_state",
               leaves=_leaf_specs(leaves), history=_leaf_specs(hist))
+  if best is not None:
+    info["best_leaves"] = _leaf_specs(best_leaves)
 
   def write(tmp: Path):
     ocp.PyTreeCheckpointer().save(tmp / "arrays", {k: v for k, v in arrays.items() if v})
@@ -219,17 +311,20 @@ def load_state_info(run_dir: str | Path) -> dict:
   info = _read_meta(d / "state.json")
   if info.get("kind") != "train_state":
     raise CheckpointError(f"{d} is not a training state (kind={info.get('kind')!r}); re-run training")
-  return info
+  return require(info, {"leaves": list, "history": list}, d / "state.json")
 
 
-def load_state(run_dir: str | Path, template: Any) -> tuple[Any, dict[str, np.ndarray], dict]:
-  """(tree, history, info) saved by :func:`save_state`; ``tree`` has the structure of ``template``
-  (e.g. ``jax.eval_shape`` of the trainer's init), whose leaf names, shapes and dtypes must match."""
-  info = load_state_info(run_dir)
-  d = _resolve(state_dir(Path(run_dir).resolve()))
+class SavedState(NamedTuple):
+  tree: Any  # structured as the template
+  history: dict[str, np.ndarray]
+  info: dict  # state.json
+  best: Any  # structured as best_template; None when not asked for or not saved
+
+
+def _check_fits(d: Path, got: list, template) -> tuple[Any, list]:
+  """(treedef, leaf specs) of ``template``, refused unless they equal the saved specs ``got``."""
   flat, treedef = jax.tree_util.tree_flatten_with_path(template)
   want = _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat])
-  got = info.get("leaves", [])
   if got != want:
     fmt = lambda spec: f"{spec[0]} {spec[2]}{spec[1]}" if spec else "nothing"
     saved, needed = next(((g, w) for g, w in zip(got, want) if g != w),
@@ -237,19 +332,33 @@ def load_state(run_dir: str | Path, template: Any) -> tuple[Any, dict[str, np.nd
     raise CheckpointError(f"the training state in {d} does not fit this run (saved {fmt(saved)} where "
                           f"this run needs {fmt(needed)}): it was written by another configuration or hdt "
                           f"version; start a new run in another out= directory")
+  return treedef, want
+
+
+def load_state(run_dir: str | Path, template: Any, best_template: Any = None) -> SavedState:
+  """(tree, history, info, best) saved by :func:`save_state`; ``tree`` has the structure of
+  ``template`` (e.g. ``jax.eval_shape`` of the trainer's init), whose leaf names, shapes and dtypes
+  must match; so must ``best_template``'s, if given and a best record was saved (else best=None)."""
+  info = load_state_info(run_dir)
+  d = _resolve(state_dir(Path(run_dir).resolve()))
+  treedef, want = _check_fits(d, info.get("leaves", []), template)
+  with_best = best_template is not None and "best_leaves" in info
+  best_def, best_want = _check_fits(d, info["best_leaves"], best_template) if with_best else (None, [])
   try:
     arrays = ocp.PyTreeCheckpointer().restore(d / "arrays")
-    state = [np.asarray(arrays["state"][f"{i:05d}"]) for i in range(len(want))]
-    hist = {name: np.asarray(arrays["history"][f"{i:05d}"])
-            for i, (name, _, _) in enumerate(info.get("history", []))}
+    group = lambda name, n: [np.asarray(arrays[name][f"{i:05d}"]) for i in range(n)]
+    state, best = group("state", len(want)), group("best", len(best_want))
+    hist = dict(zip([h[0] for h in info.get("history", [])], group("history", len(info.get("history", [])))))
   except Exception as e:  # orbax raises several types for damaged files
     raise CheckpointError(f"corrupt training state in {d / 'arrays'} ({type(e).__name__}: {e}); "
                           f"delete {d} to start over, or restore it from a backup") from e
-  for (name, shape, dtype), x in zip(want + info.get("history", []), state + list(hist.values())):
+  for (name, shape, dtype), x in zip(want + info.get("history", []) + best_want,
+                                     state + list(hist.values()) + best):
     if list(x.shape) != shape or str(x.dtype) != dtype:
       raise CheckpointError(f"corrupt training state in {d}: {name} has shape {x.shape} {x.dtype}, "
                             f"state.json says {shape} {dtype}; delete {d} to start over")
-  return jax.tree_util.tree_unflatten(treedef, state), hist, info
+  return SavedState(jax.tree_util.tree_unflatten(treedef, state), hist, info,
+                    jax.tree_util.tree_unflatten(best_def, best) if with_best else None)
 
 
 def differences(saved: Any, requested: Any, path: str = "") -> list[str]:

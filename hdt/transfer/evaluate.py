@@ -15,7 +15,8 @@ from hdt.agents.train import make_train
 from hdt.envs import make
 from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer.pipeline import build_high_env, hl_obs_layout, low_policy_fn
+from hdt.transfer.pipeline import (LOW_PARAMS, build_high_env, check_memory, hl_obs_layout, low_policy_fn,
+                                   state_bytes)
 
 _GOAL_SPACE = {"nav": "navigation (torso xy)", "manip": "manipulation (end-effector xy)"}
 
@@ -39,18 +40,48 @@ class Policy:
     return int(jax.tree.leaves(self.params)[0].shape[0])
 
 
-def load_policy(run: str | Path) -> Policy:
-  params, metas = ckpt.load_all(run)
+# What a policy checkpoint's metadata must hold to be run (checked, so an edited file is one line).
+POLICY_FIELDS = {"level": str, "agent": str, "task": str, "family": str, "obs_size": int, "action_size": int,
+                 "hidden_sizes": list, "delta_max": (int, float), "k": int}
+
+
+def _load(run, which: str, what: str):
+  """(params, metas) of every seed; metas[0]["params"] labels them all (ckpt.params_label)."""
+  params, metas = ckpt.load_all(run, ckpt.check_which(which, what))
+  for i, m in enumerate(metas):
+    ckpt.require(m, POLICY_FIELDS, Path(run) / f"seed_{i}" / "meta.json")
+  return params, [dict(metas[0], params=ckpt.params_label(metas))] + metas[1:]
+
+
+def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
+  """Refuses an HL over the LL run it was trained over if that LL changed since (retrained)."""
+  rec = hm.get("low")
+  if not isinstance(rec, dict) or not rec.get("sha256") or not isinstance(rec.get("path"), str):
+    return  # trained before hashes were recorded, or not over an LL run
+  if Path(rec["path"]).resolve() != Path(low).resolve():
+    return  # another LL: a transfer, not a dependency
+  if ckpt.content_hash(low, int(rec.get("seed_index", 0))) != rec["sha256"]:
+    raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
+                               f"content hash differs: was it retrained?); retrain the HL over it, or "
+                               f"restore the LL it was trained over")
+
+
+def load_policy(run: str | Path, which: str = "final") -> Policy:
+  """A flat policy run; ``which``: its "final" parameters or its "best" evaluation's."""
+  params, metas = _load(run, which, "which")
   return Policy(params["policy"], metas[0])
 
 
-def compose(high: str | Path, low: str | Path, box: str = "refuse") -> Policy:
+def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str = "final",
+            low_which: str = LOW_PARAMS) -> Policy:
   """HL of ``high`` driving the LL of ``low``. Goal spaces must agree; goal boxes that differ are
   refused unless ``box='scale'`` (the HL's [-1, 1] actions span the LL's box) or ``box='keep'``
-  (the HL's box in metres)."""
-  hp, hmetas = ckpt.load_all(high)
-  lp, lmetas = ckpt.load_all(low)
+  (the HL's box in metres). ``which`` / ``low_which``: the HL's / LL's "final" parameters or their
+  "best" evaluation's (the LL's best by default, as the authors compose and as train_high does)."""
+  hp, hmetas = _load(high, which, "which")
+  lp, lmetas = _load(low, low_which, "low_which")
   hm, lm = hmetas[0], lmetas[0]
+  check_low_unchanged(high, hm, low)
   if hm.get("level") != "high":
     raise ckpt.CheckpointError(f"{high} holds a {hm.get('level')!r}-level policy; compose needs an HL "
                                f"(from `hdt train high`) as high=")
@@ -117,6 +148,10 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
     env = _env_for(policy, task, backend, low_params, **task_overrides)
     return make_train(env, cfg).evaluate(params, k)
 
+  first_low = None if policy.low_params is None else jax.tree.map(lambda x: x[0], policy.low_params)
+  check_memory(len(idx) * episodes * 4 * state_bytes(_env_for(policy, task, backend, first_low, **task_overrides)),
+               f"evaluating {len(idx)} seeds x {episodes} episodes in parallel (env states, ~4 copies)",
+               "lower the number of episodes or seeds")
   params = jax.tree.map(lambda x: x[idx], policy.params)
   low = None if policy.low_params is None else jax.tree.map(lambda x: x[idx], policy.low_params)
   keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(key), i))(jnp.asarray(idx))
@@ -129,20 +164,27 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
       per_seed[extra] = np.asarray(out[extra])
   summary = {f"{k}_mean": float(np.mean(v)) for k, v in per_seed.items()}
   summary |= {f"{k}_std": float(np.std(v)) for k, v in per_seed.items()}
-  return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **summary)
+  which = {"params": policy.meta.get("params", "final")}  # every number says which parameters made it
+  if policy.low_meta is not None:
+    which["low_params"] = policy.low_meta.get("params", "final")
+  return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary)
 
 
 def zero_shot_matrix(highs: dict[str, str | Path], lows: dict[str, str | Path], task: str,
-                     episodes: int = 100, backend: str = "auto", **kw) -> dict:
+                     episodes: int = 100, backend: str = "auto", which: str = "final",
+                     low_which: str = LOW_PARAMS, **kw) -> dict:
   """Table-1-style matrix: rows = LL agents, columns = HL sources; entries (mean, std) of the task
-  metric (success rate where the task has one, else return)."""
-  cells = {}
+  metric (success rate where the task has one, else return). ``which`` / ``low_which``: as in
+  :func:`compose`; ``params`` maps each cell to the (HL, LL) parameters it used."""
+  cells, used = {}, {}
   for lname, lrun in lows.items():
     for hname, hrun in highs.items():
-      ev = evaluate(compose(hrun, lrun), task, episodes=episodes, backend=backend, **kw)
+      ev = evaluate(compose(hrun, lrun, which=which, low_which=low_which), task, episodes=episodes,
+                    backend=backend, **kw)
       metric = "success" if "success_mean" in ev else "return"
       cells[(lname, hname)] = (ev[f"{metric}_mean"], ev[f"{metric}_std"], metric)
-  return dict(task=task, rows=list(lows), cols=list(highs), cells=cells)
+      used[(lname, hname)] = (ev["params"], ev["low_params"])
+  return dict(task=task, rows=list(lows), cols=list(highs), cells=cells, params=used)
 
 
 def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key: int = 0,

@@ -41,8 +41,8 @@ from hdt.agents.kl import MODES, linear_anneal, make_kl_regularizer
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.pipeline import (RunResult, _hl_obs_meta, _run, env_meta, high_env, hl_obs_layout,
-                                   sac_extras, train_high)
+from hdt.transfer.pipeline import (LOW_PARAMS, RunResult, _hl_obs_meta, _run, env_meta, high_env_with_low,
+                                   hl_obs_layout, sac_extras, train_high)
 
 train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 
@@ -50,10 +50,11 @@ train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 INITS = ("sac", "policy")
 
 
-def load_high_sac(high: str | Path):
+def load_high_sac(high: str | Path, which: str = "final"):
   """(params stacked over A's seeds: "policy", "q" and, when saved, "target_q", "log_alpha"; metas)
-  of a saved HL, checked to be a high level."""
-  params, metas = ckpt.load_all(high)
+  of a saved HL, checked to be a high level; ``which``: its "final" parameters (as the authors'
+  finetune scripts) or its "best" evaluation's."""
+  params, metas = ckpt.load_all(high, which)
   level = metas[0].get("level")
   if level != "high":
     raise ckpt.CheckpointError(f"{high} holds a {level!r}-level policy; finetune_high needs an HL "
@@ -61,9 +62,9 @@ def load_high_sac(high: str | Path):
   return params, metas
 
 
-def load_high(high: str | Path):
+def load_high(high: str | Path, which: str = "final"):
   """(policy params stacked over A's seeds, metas) of a saved HL, checked to be a high level."""
-  params, metas = load_high_sac(high)
+  params, metas = load_high_sac(high, which)
   return params["policy"], metas
 
 
@@ -103,6 +104,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
                   lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
                   resume=False, save_every=None, init: str = "sac", learning_starts: int | None = 0,
+                  low_params: str = LOW_PARAMS, overwrite=False,
                   **task_overrides) -> RunResult:
   """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
 
@@ -114,7 +116,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   config: SAC config; default :func:`configs.high_config` of ``task`` with A's hidden sizes.
   lr: if given, overrides actor, critic and temperature learning rates (paper: 0.01 Waypoint /
     manipulation, 0.001 Maze).
-  low_seed: the seed of ``low`` whose LL drives every HL seed (as in ``train_high``).
+  low_seed, low_params: the seed of ``low`` whose LL drives every HL seed, and which of its
+    parameters (as in ``train_high``).
   reference_seed: A's seed used as the frozen KL reference for every seed.
   resume, save_every: as in :func:`hdt.transfer.pipeline.train_low` (a resumed run restarts from its
     saved state, not from A's HL).
@@ -139,7 +142,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
 
-  env = high_env(task, low, low_seed, backend, **(hl_obs_layout(am) | task_overrides))
+  env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params,
+                                   **(hl_obs_layout(am) | task_overrides))
   fam = env.env.agent.family
   if am.get("family") != fam:
     raise ValueError(f"goal spaces do not match: the HL in {high} was trained for the {am.get('family')!r} "
@@ -187,12 +191,13 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   ts = ts.replace(agent=start_from_a(ts.agent, a_params, pick, config, high, init))
 
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
-                  low=dict(path=str(low), seed_index=low_seed), task_overrides=task_overrides,
+                  low=low_rec, task_overrides=task_overrides,
                   hl_obs=_hl_obs_meta(env), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
+                                      params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
                                       reference_seed=reference_seed),
                   init=init, kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
   return _run(env, config, seed_list, out, meta, quiet, label, resume, save_every, initial_state=ts,
-              trainer=trainer, save_extra=sac_extras)
+              trainer=trainer, save_extra=sac_extras, overwrite=overwrite)
