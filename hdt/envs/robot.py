@@ -102,12 +102,9 @@ def short_name(agent) -> str:
 def _load(path: str, sha: str) -> AgentSpec:
   del sha  # part of the cache key only: an edited file is loaded again
   where = f"robot {path}"
-  try:
-    spec = mujoco.MjSpec.from_file(path)
-    model = spec.compile()
-  except Exception as e:  # mujoco raises ValueError with the parser's message
-    first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-    raise RobotError(f"{where}: the MJCF does not load: {first}") from None
+  spec = _try(where, mujoco.MjSpec.from_file, path)
+  _check_names_exist(where, spec)  # before compiling: a missing site otherwise fails its sensor
+  model = _try(where, spec.compile)
 
   texts = {t.name: t.data for t in spec.texts}
   numerics = {n.name: [float(x) for x in n.data] for n in spec.numerics}
@@ -142,6 +139,26 @@ def _load(path: str, sha: str) -> AgentSpec:
   return out
 
 
+def _try(where, fn, *args):
+  try:
+    return fn(*args)
+  except Exception as e:  # mujoco raises ValueError with the parser's or compiler's message
+    first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    raise RobotError(f"{where}: the MJCF does not load: {first}") from None
+
+
+def _check_names_exist(where, spec: mujoco.MjSpec):
+  if "root" not in {b.name for b in spec.bodies}:
+    raise RobotError(f"{where}: no body named 'root' (the convention: the robot's base body is named "
+                     f"root; a nav robot's torso, an arm's first link; {DOC})")
+  if "goal_point" not in {s.name for s in spec.sites}:
+    raise RobotError(f"{where}: no site named 'goal_point' (the convention: a site at the goal-space "
+                     f"point, the torso centre of a nav robot or the fingertip of an arm; {DOC})")
+  if "goal_point" not in {s.name for s in spec.sensors}:
+    raise RobotError(f"{where}: no sensor named 'goal_point' (the convention: <framepos "
+                     f"name=\"goal_point\" objtype=\"site\" objname=\"goal_point\"/>; {DOC})")
+
+
 def _check_names(where, texts, numerics):
   for name in texts:
     if name.startswith(PREFIX) and name[len(PREFIX):] not in TEXT_FIELDS:
@@ -171,19 +188,7 @@ def _value(where, field, values):
 
 
 def _check_structure(where, m: mujoco.MjModel, family: str):
-  def has(obj, name):
-    return mujoco.mj_name2id(m, obj, name) >= 0
-
-  if not has(mujoco.mjtObj.mjOBJ_BODY, "root"):
-    raise RobotError(f"{where}: no body named 'root' (the convention: the robot's base body is named "
-                     f"root; a nav robot's torso, an arm's first link; {DOC})")
-  if not has(mujoco.mjtObj.mjOBJ_SITE, "goal_point"):
-    raise RobotError(f"{where}: no site named 'goal_point' (the convention: a site at the goal-space "
-                     f"point, the torso centre of a nav robot or the fingertip of an arm; {DOC})")
   s = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, "goal_point")
-  if s < 0:
-    raise RobotError(f"{where}: no sensor named 'goal_point' (the convention: <framepos "
-                     f"name=\"goal_point\" objtype=\"site\" objname=\"goal_point\"/>; {DOC})")
   site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "goal_point")
   if (m.sensor_type[s] != mujoco.mjtSensor.mjSENS_FRAMEPOS or m.sensor_objtype[s] != mujoco.mjtObj.mjOBJ_SITE
       or m.sensor_objid[s] != site or m.sensor_reftype[s] != mujoco.mjtObj.mjOBJ_UNKNOWN):
