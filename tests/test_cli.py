@@ -153,6 +153,7 @@ def test_hexapod_file_trained_transferred_to_and_aligned(runs):
   assert meta["aligned_to"]["agent"] == "point" and meta["agent"].endswith("hexapod.xml")
 
 
+@pytest.mark.slow  # three more programs to compile (~4 min under load): `pytest -m slow`
 def test_arm5_file_trained_and_transferred_to(runs):
   """The 5-link arm exists only as examples/robots/arm5.xml: its LL, and an arm_point HL on
   BlockPush 1 (trained here at a tiny budget) on it."""
