@@ -1,6 +1,7 @@
 """hdt: hierarchically decoupled morphological transfer, from the shell.
 
   hdt train low --agent point                     goal-reaching LL of an agent
+  hdt train low --agent path/to/robot.xml         ... of your own robot (one MJCF file, ROBOTS.md)
   hdt train high --task waypoint --low RUN        HL SAC over a frozen LL
   hdt train full --agent ant --task maze          flat SAC baseline
   hdt align --agent arm3 --imitate RUN            LL aligned to another agent's LL (discriminator)
@@ -33,6 +34,8 @@ from hdt.agents.sac import SACConfig
 PRESETS = ("smoke", "cpu", "paper")
 REPO = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6")
+AGENT_HELP = ("point, ant, ant3, ant2, quadruped, arm_point, arm2, arm3, arm4, or the path of a robot "
+              "MJCF file that follows ROBOTS.md (e.g. examples/robots/hexapod.xml)")
 
 
 class CLIError(Exception):
@@ -152,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
   t = sub.add_parser("train", help="train a low level, a high level or the flat Full baseline", formatter_class=_Help)
   tsub = t.add_subparsers(dest="level", required=True, metavar="LEVEL", parser_class=_Parser)
   lo = tsub.add_parser("low", help="goal-reaching LL of --agent on its reach task", formatter_class=fmt)
-  lo.add_argument("--agent", required=True, help="point, ant, ant3, ant2, quadruped, arm_point, arm2, arm3, arm4")
+  lo.add_argument("--agent", required=True, help=AGENT_HELP)
   _training(lo)
   hi = tsub.add_parser("high", help="HL SAC on --task over the frozen LL in --low", formatter_class=fmt)
   hi.add_argument("--task", required=True, help="waypoint, maze, steps, push1, push2, insert")
@@ -162,13 +165,13 @@ def build_parser() -> argparse.ArgumentParser:
   _low_params(hi)
   _training(hi)
   fu = tsub.add_parser("full", help="flat SAC on --task with --agent's torques", formatter_class=fmt)
-  fu.add_argument("--agent", required=True)
+  fu.add_argument("--agent", required=True, help=AGENT_HELP)
   fu.add_argument("--task", required=True)
   _training(fu)
 
   al = sub.add_parser("align", help="LL of --agent aligned to the LL in --imitate (Algorithm 1)",
                       formatter_class=fmt)
-  al.add_argument("--agent", required=True)
+  al.add_argument("--agent", required=True, help=AGENT_HELP)
   al.add_argument("--imitate", required=True, type=Path, help="LL run directory of agent A")
   al.add_argument("--n-offline", type=int, default=20_000, help="A transitions collected offline")
   _training(al)
@@ -278,11 +281,21 @@ def _sac_config(args, level: str, agent=None, task=None, k=None, **extra) -> SAC
 
 def _check_agent_task(agent=None, task=None):
   from hdt.envs.agents import AGENTS
+  from hdt.envs.robot import is_robot_path, load_robot
   from hdt.envs.tasks import TASKS
-  if agent is not None and agent not in AGENTS:
-    raise CLIError(f"unknown agent {agent!r}; choose one of {', '.join(AGENTS)}")
+  if agent is not None and is_robot_path(agent):
+    load_robot(agent)  # validated now: a RobotError is one line naming what the file misses
+  elif agent is not None and agent not in AGENTS:
+    raise CLIError(f"unknown agent {agent!r}; choose one of {', '.join(AGENTS)}, or give the path of "
+                   f"a robot MJCF file (ROBOTS.md)")
   if task is not None and task not in TASKS:
     raise CLIError(f"unknown task {task!r}; choose one of {', '.join(TASKS)}")
+
+
+def _label(agent: str) -> str:
+  """An agent's name in a default run directory: a robot file's stem."""
+  from hdt.envs.robot import short_name
+  return short_name(agent)
 
 
 def _finish(res, args):
@@ -306,7 +319,7 @@ def cmd_train(args) -> int:
   if args.level == "low":
     _check_agent_task(args.agent)
     cfg = _sac_config(args, "low", args.agent)
-    out = _out_dir(args, f"low-{args.agent}")
+    out = _out_dir(args, f"low-{_label(args.agent)}")
     res = pipeline.train_low(args.agent, cfg, seeds=seeds, out=out, backend=args.backend, quiet=args.quiet,
                              **_run_kw(args), **overrides)
   elif args.level == "high":
@@ -316,14 +329,14 @@ def cmd_train(args) -> int:
       raise CLIError(f"--k {args.k}: give a positive number of LL steps per HL action")
     overrides = configs.task_options(args.preset, args.task) | overrides
     cfg = _sac_config(args, "high", task=args.task, k=args.k or low_meta["k"])
-    out = _out_dir(args, f"high-{args.task}-{low_meta['agent']}")
+    out = _out_dir(args, f"high-{args.task}-{_label(low_meta['agent'])}")
     res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
                               low_seed=args.low_seed, k=args.k, quiet=args.quiet, low_params=args.low_params,
                               **_run_kw(args), **overrides)
   else:
     _check_agent_task(args.agent, args.task)
     cfg = _sac_config(args, "full", args.agent, args.task)
-    out = _out_dir(args, f"full-{args.agent}-{args.task}")
+    out = _out_dir(args, f"full-{_label(args.agent)}-{args.task}")
     res = pipeline.train_full(args.agent, args.task, cfg, seeds=seeds, out=out, backend=args.backend,
                               quiet=args.quiet, **_run_kw(args), **overrides)
   return _finish(res, args)
@@ -338,7 +351,7 @@ def cmd_align(args) -> int:
   check_env_overrides(_key_values(args.set, "--set"), args.agent, "reach")
   disc = DiscConfig(**_overrides(args, DiscConfig, "disc_"))
   cfg = _sac_config(args, "low", args.agent)
-  out = _out_dir(args, f"align-{args.agent}-to-{imitate_meta['agent']}")
+  out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate_meta['agent'])}")
   res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
                   backend=args.backend, quiet=args.quiet, **_run_kw(args),
                   **_key_values(args.set, "--set"))
@@ -355,7 +368,7 @@ def cmd_finetune(args) -> int:
   hm = ckpt.require(ckpt.load_meta(args.high), {"agent": str, "hidden_sizes": list}, args.high)
   lm = load_low(args.low, args.low_seed)[1]
   cfg = _sac_config(args, "high", task=args.task, k=lm["k"], hidden_sizes=tuple(hm["hidden_sizes"]))
-  out = _out_dir(args, f"finetune-{args.task}-{hm['agent']}-to-{lm['agent']}-kl{args.kl:g}")
+  out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{args.kl:g}")
   res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
                       backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,

@@ -1,4 +1,7 @@
-"""MJX and native MuJoCo agree on every agent's scene and both run under vmap inside jit(scan)."""
+"""MJX and native MuJoCo agree on every agent's scene and both run under vmap inside jit(scan),
+the robots brought as one MJCF file (examples/robots, ROBOTS.md) included."""
+
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -12,10 +15,13 @@ import hdt.envs as E
 # landing differences grow (measured: ants 1e-2 at step 5 and up to 0.8 by step 100; quadruped 3e-2).
 # There we hold the first steps tight and the torso within a bound at step 100.
 SMOOTH = 1e-4
+ROBOTS = Path(__file__).resolve().parents[1] / "examples" / "robots"
+HEXAPOD, ARM5 = str(ROBOTS / "hexapod.xml"), str(ROBOTS / "arm5.xml")
 SCENES = [("point", "maze"), ("arm_point", "push1"), ("arm2", "push1"), ("arm3", "insert"),
           ("arm4", "push1"), ("quadruped", "reach"), ("ant", "reach"), ("ant3", "reach"),
-          ("ant2", "reach")]
-LEGGED = {"ant": (0.05, 1.5), "ant3": (0.05, 1.5), "ant2": (0.05, 1.5), "quadruped": (0.01, 0.1)}
+          ("ant2", "reach"), (HEXAPOD, "reach"), (ARM5, "push1")]
+LEGGED = {"ant": (0.05, 1.5), "ant3": (0.05, 1.5), "ant2": (0.05, 1.5), "quadruped": (0.01, 0.1),
+          HEXAPOD: (0.05, 1.5)}
 
 
 def _rollouts(agent, task, backend, nenv=2, nstep=100):
@@ -32,7 +38,7 @@ def _rollouts(agent, task, backend, nenv=2, nstep=100):
   return np.asarray(jax.jit(run)(jax.random.split(jax.random.PRNGKey(0), nenv)))
 
 
-@pytest.mark.parametrize("agent,task", SCENES)
+@pytest.mark.parametrize("agent,task", SCENES, ids=[f"{Path(a).stem}-{t}" for a, t in SCENES])
 def test_backends_agree(agent, task):
   nat, mjx = _rollouts(agent, task, "native"), _rollouts(agent, task, "mjx")
   assert np.isfinite(mjx).all() and np.isfinite(nat).all()

@@ -2,12 +2,16 @@
 
 import csv
 import json
+import math
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from hdt.cli import COMMANDS, main
+
+REPO = Path(__file__).resolve().parents[1]
 
 TINY_LOW = ["--preset", "smoke", "--seeds", "2", "--quiet", "--total-env-steps", "800", "--steps-per-chunk", "50",
             "--hidden-sizes", "32", "32"]
@@ -383,3 +387,60 @@ def test_ctrl_c_exits_130_with_a_resume_hint_and_no_traceback(tmp_path):
   assert len(lines) == 1 and "Traceback" not in rest, rest
   assert lines[0].startswith("hdt: interrupted;") and "--resume" in lines[0] and str(out) in lines[0]
   assert ckpt.has_state(out) and not list(out.glob(".*.tmp")) and "Failed to import" not in rest
+
+
+# -- bring your own robot (ROBOTS.md): robots that exist only as an MJCF file ----------------------
+
+ROBOTS = REPO / "examples" / "robots"
+
+
+# One seed, two chunks, one evaluation episode: compiling dominates (each run is a new program).
+ROBOT_LOW = ["--preset", "smoke", "--seeds", "1", "--quiet", "--total-env-steps", "400", "--steps-per-chunk", "50",
+             "--hidden-sizes", "32", "32", "--num-eval-episodes", "1"]
+
+
+def _robot_low_and_zero_shot(runs, robot, high, task):
+  """An LL of the robot file at the smoke preset, then the point-mass HL in ``high`` zero-shot on it
+  through `hdt eval --high --low`."""
+  xml = ROBOTS / f"{robot}.xml"
+  low = runs / f"{robot}_low"
+  assert main(["train", "low", "--agent", str(xml), "--out", str(low), *ROBOT_LOW]) == 0
+  meta = json.loads((low / "meta.json").read_text())
+  assert meta["agent"] == str(xml.resolve()) and len(meta["robot_sha256"]) == 64
+  out = runs / f"eval_{robot}"
+  assert main(["eval", "--high", str(high), "--low", str(low), "--task", task, "--episodes", "1",
+               "--out", str(out)]) == 0
+  ev = json.loads((out / f"eval_{task}.json").read_text())
+  assert ev["per_seed"]["return"] and all(map(math.isfinite, ev["per_seed"]["return"]))
+  return low
+
+
+def test_hexapod_file_trained_transferred_to_and_aligned(runs):
+  """The hexapod exists only as examples/robots/hexapod.xml: its LL, the PM Waypoint HL on it, and
+  its LL aligned to the point mass's (`hdt align`)."""
+  _robot_low_and_zero_shot(runs, "hexapod", runs / "high", "waypoint")
+  aligned = runs / "hexapod_aligned"
+  assert main(["align", "--agent", str(ROBOTS / "hexapod.xml"), "--imitate", str(runs / "low"),
+               "--out", str(aligned), "--n-offline", "100", *ROBOT_LOW]) == 0
+  meta = json.loads((aligned / "meta.json").read_text())
+  assert meta["aligned_to"]["agent"] == "point" and meta["agent"].endswith("hexapod.xml")
+
+
+@pytest.mark.slow  # three more programs to compile (~4 min under load): `pytest -m slow`
+def test_arm5_file_trained_and_transferred_to(runs):
+  """The 5-link arm exists only as examples/robots/arm5.xml: its LL, and an arm_point HL on
+  BlockPush 1 (trained here at a tiny budget) on it."""
+  arm_low, arm_high = runs / "arm_point_low", runs / "arm_point_high"
+  assert main(["train", "low", "--agent", "arm_point", "--out", str(arm_low), *ROBOT_LOW]) == 0
+  assert main(["train", "high", "--task", "push1", "--low", str(arm_low), "--out", str(arm_high),
+               *TINY_HIGH[:3], "1", *TINY_HIGH[4:]]) == 0
+  _robot_low_and_zero_shot(runs, "arm5", arm_high, "push1")
+
+
+def test_broken_robot_file_is_a_one_line_error(tmp_path, capsys):
+  bad = tmp_path / "robot.xml"
+  bad.write_text((ROBOTS / "arm5.xml").read_text().replace('<site name="goal_point" pos="0 0 0" size="0.005"/>', ""))
+  assert main(["train", "low", "--agent", str(bad), "--out", str(tmp_path / "run"), "--preset", "smoke"]) == 1
+  err = capsys.readouterr().err.strip()
+  assert "no site named 'goal_point'" in err and "ROBOTS.md" in err and len(err.splitlines()) == 1, err
+  assert not (tmp_path / "run").exists()

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from hdt.envs.agents import AGENTS
 from hdt.envs.env import AgentTaskEnv
+from hdt.envs.robot import agent_spec
 from hdt.envs.tasks import TASKS
 
 # Pairs the suite does not define (SPEC 3: the 2-link arm cannot reach the PegInsert slot).
@@ -13,7 +13,8 @@ UNSUPPORTED = {("arm2", "insert"): "the 2-link arm cannot reach the PegInsert sl
 
 
 def supported_tasks(agent: str) -> list[str]:
-  fam = AGENTS[agent].family
+  """Tasks of ``agent`` (a registry name or a robot file, see ``hdt.envs.robot``)."""
+  fam = agent_spec(agent).family
   out = []
   for name, cls in TASKS.items():
     t = cls()
@@ -23,18 +24,18 @@ def supported_tasks(agent: str) -> list[str]:
 
 
 def make(agent: str, task: str, backend: str = "auto", **overrides) -> AgentTaskEnv:
-  """Build ``agent`` on ``task``. ``overrides`` set AgentSpec fields (k, delta_max, frame_skip,
+  """Build ``agent`` on ``task``. ``agent`` is a registry name ("ant") or the path of a robot MJCF
+  file (ROBOTS.md), validated on load. ``overrides`` set AgentSpec fields (k, delta_max, frame_skip,
   reset_prob, ...) or Task fields (goal="end", hl_horizon, ...)."""
-  if agent not in AGENTS:
-    raise ValueError(f"unknown agent {agent!r}; valid agents: {', '.join(AGENTS)}")
+  spec = agent_spec(agent)
+  agent = spec.name
   if task not in TASKS:
     raise ValueError(f"unknown task {task!r}; valid tasks: {', '.join(TASKS)}")
   if task not in supported_tasks(agent):
     why = UNSUPPORTED.get((agent, task), f"{task} is a {TASKS[task]().family} task, {agent} a "
-                          f"{AGENTS[agent].family} agent")
+                          f"{spec.family} agent")
     raise ValueError(f"agent {agent!r} cannot run task {task!r} ({why}); tasks for {agent}: "
                      f"{', '.join(supported_tasks(agent))}")
-  spec = AGENTS[agent]
   agent_fields = {f.name for f in dataclasses.fields(spec)}
   task_obj = TASKS[task]()
   task_fields = {f.name for f in dataclasses.fields(task_obj)}

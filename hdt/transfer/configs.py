@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 from hdt.agents.sac import SACConfig
-from hdt.envs.agents import AGENTS
+from hdt.envs.robot import agent_spec
 
 # Low level: PM nav 200k / lr 3e-4 / batch 64 / [64,64] / buffer 200k; legged 2.5M / 8e-4 / 100 /
 # [400,300] / 1M; manipulation 1.2M / 3e-4 / 100 / [128,96] / 250k.
@@ -42,8 +42,7 @@ def _fit(cfg: dict) -> SACConfig:
 
 
 def low_config(agent: str, **overrides) -> SACConfig:
-  spec = AGENTS[agent]
-  base = _LOW["point"] if agent == "point" else _LOW["legged"] if spec.legged else _LOW["manip"]
+  base = _LOW[family_key(agent)]
   return _fit(_lrs(dict(base)) | overrides)
 
 
@@ -96,8 +95,10 @@ def task_options(preset: str, task: str) -> dict:
 
 
 def family_key(agent: str) -> str:
-  spec = AGENTS[agent]
-  return "point" if agent == "point" else "legged" if spec.legged else "manip"
+  """The budget family of ``agent`` (a name or a robot file): "point" (a nav robot that cannot fall),
+  "legged" or "manip"."""
+  spec = agent_spec(agent)
+  return "legged" if spec.legged else "point" if spec.family == "nav" else "manip"
 
 
 def preset_overrides(preset: str, level: str, agent: str | None = None) -> dict:
@@ -115,7 +116,7 @@ def disc_config(agent_a: str, **overrides):
   """The paper's discriminator hyper-parameters by A (paper table "discriminator training"): nav PM
   lr 2e-4 weight 0.3; manipulation PM and 2Link lr 3e-4, 3Link (and 4Link) 5e-4, weight 0.4."""
   from hdt.agents.discriminator import DiscConfig  # configs stays importable without flax
-  spec = AGENTS[agent_a]
+  spec = agent_spec(agent_a)
   base = {} if spec.family == "nav" else dict(lr=3e-4 if agent_a in ("arm_point", "arm2") else 5e-4,
                                               w_init=0.4)
   return DiscConfig(**(base | overrides))

@@ -13,6 +13,7 @@ import numpy as np
 from hdt.agents.sac import SACConfig
 from hdt.agents.train import make_train
 from hdt.envs import make
+from hdt.envs.robot import check_recorded
 from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer.pipeline import (LOW_PARAMS, build_high_env, check_memory, hl_obs_layout, low_policy_fn,
@@ -111,6 +112,7 @@ def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, re
              **task_overrides):
   if policy.low_meta is None:  # flat policy: LL on reach, or a Full policy on its task
     task = task or policy.meta["task"]
+    check_recorded(policy.meta)
     env = make(policy.meta["agent"], task, backend=backend,
                **(policy.meta.get("env_overrides") or {}) | task_overrides)
     if env.observation_size != policy.meta["obs_size"]:

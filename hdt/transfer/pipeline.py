@@ -19,6 +19,7 @@ from hdt.agents import networks as nets
 from hdt.agents import train as sac_train
 from hdt.agents.sac import SACConfig
 from hdt.envs import make
+from hdt.envs.robot import check_recorded, robot_record
 from hdt.envs.spec import AgentSpec
 from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
@@ -49,7 +50,8 @@ def env_meta(env, level: str, config: SACConfig, **extra) -> dict:
               goal_space=f"{agent.family}:{task.point_sensor}", delta_max=agent.delta_max, k=agent.k,
               obs_size=int(env.observation_size), action_size=int(env.action_size),
               obs_lo_size=int(env.obs_lo_size), obs_hi_size=int(env.obs_hi_size),
-              hidden_sizes=list(config.hidden_sizes), sac=dataclasses.asdict(config)) | extra
+              hidden_sizes=list(config.hidden_sizes), sac=dataclasses.asdict(config)) \
+      | robot_record(agent) | extra  # a robot file: its path is the agent, and its sha256
 
 
 def print_progress(total: int, quiet: bool = False, label: str = "") -> Callable[[int, dict], None]:
@@ -385,6 +387,7 @@ def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):
   if meta["k"] <= 0 or not np.isfinite(meta["delta_max"]) or meta["delta_max"] <= 0:
     raise ckpt.CheckpointError(f"the LL in {low} was trained with k={meta['k']}, delta_max={meta['delta_max']}; "
                                f"an HL needs both positive: retrain the LL without such --set values")
+  check_recorded(meta)
   fn = low_policy_fn(meta["hidden_sizes"], meta["obs_size"], meta["action_size"])
   return params, meta, fn
 
@@ -412,6 +415,7 @@ def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None
   hl_horizon = next((h for h in (hl_horizon, overridden) if h is not None), TASKS[task]().hl_horizon)
   # Only the LL's morphology options carry over; its reach-task options (terrain=...) do not
   # belong to the HL task.
+  check_recorded(low_meta)  # a robot file must still be there, unchanged
   agent_fields = {f.name for f in dataclasses.fields(AgentSpec)}
   morph = {k: v for k, v in (low_meta.get("env_overrides") or {}).items() if k in agent_fields}
   inner = make(low_meta["agent"], task, backend=backend, hl_horizon=10**6, **morph | task_overrides)
