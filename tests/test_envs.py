@@ -160,8 +160,8 @@ def test_block_reaches_destination():
 def test_peg_inserted():
   env = E.make("arm_point", "insert")
   s = env.reset(jax.random.PRNGKey(0))
-  # arm_point's slide qpos is its world position (joint ref): the peg tip is 0.05 m further in x.
-  s = jax.jit(env.step)(_with_qpos(env, s, [-0.05, -0.205]), jnp.zeros(2))
+  # arm_point's slide qpos is its world position (joint ref); its peg points 0.05 m along -y.
+  s = jax.jit(env.step)(_with_qpos(env, s, [0.0, -0.15]), jnp.zeros(2))
   assert s.metrics["success"] == 1.0 and s.done == 1.0
   s2 = env.reset(jax.random.PRNGKey(0))
   assert jax.jit(env.step)(s2, jnp.zeros(2)).metrics["success"] == 0.0

@@ -172,10 +172,11 @@ def _select(c, a, b):
 
 def restart_on_z(env, state, z, where, reset_physics):
   """One reach-env state restarted (where ``where``) on relative goal ``z``: the goal becomes the
-  current goal-space point + z, the physics goes back to its initial state where ``reset_physics``
+  current goal-space point + z, the physics restarts from a fresh start draw where ``reset_physics``
   (as ``DiscriminatorEnv``'s ``expert_env.reset`` + ``set_skill``). Uses the env's own observation
   function so A sees exactly what its LL was trained on."""
-  ps = _select(where & reset_physics, state.task["init"], state.physics)
+  fresh = env.initial_physics(jax.random.fold_in(state.key, 1))  # a new episode start, as env.step's
+  ps = _select(where & reset_physics, fresh, state.physics)
   q = env.quantities(ps)
   t = _select(where, {"goal": q["point"] + z, "z": z}, state.task["t"])
   lo, hi, obs = env._observe(ps, q, t)
