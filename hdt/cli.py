@@ -233,6 +233,18 @@ def build_parser() -> argparse.ArgumentParser:
   rep.add_argument("--no-trajectory", action="store_true", help="skip the trajectory plot")
   _common(rep, "unused (reports go to RUN/report/)")
 
+  zo = sub.add_parser("zoo", help="list the model zoo (zoo:NAME works wherever a run directory does), "
+                      "or export a run into it", formatter_class=fmt)
+  zo.add_argument("action", nargs="?", choices=["list", "export"], default="list")
+  zo.add_argument("run", nargs="?", help="export: the run directory to copy (policy only)")
+  zo.add_argument("--name", help="export: entry name, e.g. arm_point/push1")
+  zo.add_argument("--low", help="export of an HL: its LL as a zoo name (zoo:...), exported first")
+  zo.add_argument("--task", help="export: task to evaluate on (default the run's own)")
+  zo.add_argument("--command", default="", help="export: the command that trained the run (recorded)")
+  zo.add_argument("--episodes", type=int, default=100, help="export: evaluation episodes per seed")
+  zo.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="export: task options")
+  zo.add_argument("--overwrite", action="store_true", help="export: replace an existing entry")
+
   q = sub.add_parser("quickstart", help="PM LL + HL on Waypoint, HL transferred to an ant LL, in minutes",
                      formatter_class=fmt)
   _common(q, "root of the quickstart's runs (default: runs/quickstart)")
@@ -572,6 +584,19 @@ def cmd_reproduce(args) -> int:
   return 0
 
 
+def cmd_zoo(args) -> int:
+  from hdt.transfer import zoo
+  if args.action == "list":
+    print(zoo.table() if zoo.names() else f"the zoo ({zoo.ZOO_DIR}) is empty")
+    return 0
+  if not args.run or not args.name:
+    raise CLIError("hdt zoo export needs RUN and --name NAME, e.g. hdt zoo export runs/pm_low --name point/low")
+  dest = zoo.export(args.run, args.name, args.command, low=args.low, task=args.task, episodes=args.episodes,
+                    overwrite=args.overwrite, **_key_values(args.set, "--set"))
+  print(f"exported {args.run} to {dest} (zoo:{args.name})")
+  return 0
+
+
 def cmd_report(args) -> int:
   from hdt.report import run_report
   for run in args.run:
@@ -619,7 +644,8 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
 
 
 COMMANDS = {"train": cmd_train, "align": cmd_align, "finetune": cmd_finetune, "eval": cmd_eval,
-            "sweep": cmd_sweep, "reproduce": cmd_reproduce, "report": cmd_report, "quickstart": cmd_quickstart}
+            "sweep": cmd_sweep, "reproduce": cmd_reproduce, "report": cmd_report, "quickstart": cmd_quickstart,
+            "zoo": cmd_zoo}
 
 
 def _one_line(e: BaseException) -> str:

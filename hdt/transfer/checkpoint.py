@@ -26,6 +26,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 import hdt
+from hdt.transfer.zoo import resolve as zoo_path  # zoo:NAME wherever a run is read
 
 FORMAT_VERSION = 1
 
@@ -122,6 +123,7 @@ def content_hash(run_dir: str | Path, seed_index: int | None = None) -> str:
   """sha256 over the files (relative names and bytes) of one seed's checkpoint, or of every seed's:
   recorded by runs that depend on a checkpoint, so resuming or evaluating them after it changed
   (e.g. the LL was retrained) is refused."""
+  run_dir = zoo_path(run_dir)
   dirs = ([_resolve_seed_dir(Path(run_dir), seed_index)] if seed_index is not None
           else [_resolve_seed_dir(Path(run_dir), s) for s in list_seeds(run_dir)])
   h = hashlib.sha256()
@@ -162,6 +164,7 @@ def settle_state(run_dir: str | Path) -> None:
 
 
 def list_seeds(run_dir: str | Path) -> list[int]:
+  run_dir = zoo_path(run_dir)
   run_dir = Path(run_dir)
   if not run_dir.is_dir():
     return []
@@ -174,6 +177,7 @@ def list_seeds(run_dir: str | Path) -> list[int]:
 
 
 def load_meta(run_dir: str | Path, seed_index: int = 0) -> dict:
+  run_dir = zoo_path(run_dir)
   run_dir = Path(run_dir)
   if not run_dir.exists():
     raise CheckpointError(f"checkpoint directory {run_dir} does not exist; pass the RUN directory a "
@@ -216,6 +220,7 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
   its best periodic evaluation. As the authors' loader, "best" falls back to the final parameters
   of a checkpoint that has none; ``meta["params"]`` says which were loaded and
   ``meta["params_env_steps"]`` after how many env steps."""
+  run_dir = zoo_path(run_dir)
   check_which(which)
   meta = load_meta(run_dir, seed_index)
   d = _resolve_seed_dir(Path(run_dir).resolve(), seed_index)
@@ -239,6 +244,7 @@ def params_label(metas: list[dict]) -> str:
 
 def load_all(run_dir: str | Path, which: str = "final") -> tuple[Any, list[dict]]:
   """All seeds of a run, parameters stacked on a leading seed axis (``which``: as in :func:`load`)."""
+  run_dir = zoo_path(run_dir)
   seeds = list_seeds(run_dir)
   if not seeds:
     raise CheckpointError(f"no seed checkpoints (seed_0/, ...) in {run_dir}")

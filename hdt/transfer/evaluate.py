@@ -67,6 +67,15 @@ def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
                                f"restore the LL it was trained over")
 
 
+def trained_over(hm: dict, low: str | Path) -> int | None:
+  """The seed of ``low`` the HL was trained over, if ``low`` is the LL run it was trained over."""
+  rec = hm.get("low")
+  if not isinstance(rec, dict) or not isinstance(rec.get("path"), str):
+    return None
+  same = lambda p: Path(ckpt.zoo_path(str(p))).resolve()
+  return int(rec.get("seed_index", 0)) if same(rec["path"]) == same(low) else None
+
+
 def load_policy(run: str | Path, which: str = "final") -> Policy:
   """A flat policy run; ``which``: its "final" parameters or its "best" evaluation's."""
   params, metas = _load(run, which, "which")
@@ -102,10 +111,14 @@ def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str =
       raise ValueError(f"goal boxes differ: HL sub-goals span +-{hm['delta_max']} but the LL was trained "
                        f"on +-{lm['delta_max']}; pass box='scale' to map the HL's box onto the LL's, or "
                        f"box='keep' to keep the HL's box in metres")
-  # Pair HL seed i with LL seed i (cycling when one run has fewer seeds).
-  n = max(len(hmetas), len(lmetas))
+  # Over its own LL run an HL is evaluated on the LL seed it was trained over (train_high's low_seed);
+  # in a transfer, HL seed i drives LL seed i (cycling when one run has fewer seeds).
+  own = trained_over(hm, low)
+  n = len(hmetas) if own is not None else max(len(hmetas), len(lmetas))
   pick = lambda tree, m: jax.tree.map(lambda x: x[np.arange(n) % m], tree)
-  return Policy(pick(hp["policy"], len(hmetas)), hm, pick(lp["policy"], len(lmetas)), lm, dm)
+  low_policy = (jax.tree.map(lambda x: np.repeat(x[own:own + 1], n, axis=0), lp["policy"]) if own is not None
+                else pick(lp["policy"], len(lmetas)))
+  return Policy(pick(hp["policy"], len(hmetas)), hm, low_policy, lm, dm)
 
 
 def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, record=False,

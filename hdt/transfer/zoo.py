@@ -36,7 +36,8 @@ def resolve(path):
 
 
 def names() -> list[str]:
-  return sorted(str(p.parent.relative_to(ZOO_DIR)) for p in ZOO_DIR.glob("**/zoo.json"))
+  found = (p.parent.relative_to(ZOO_DIR) for p in ZOO_DIR.glob("**/zoo.json"))
+  return sorted(str(p) for p in found if not any(part.startswith(".") for part in p.parts))
 
 
 def entries() -> list[dict]:
@@ -46,8 +47,16 @@ def entries() -> list[dict]:
 def _evaluate(run: str, low: str | None, task: str, episodes: int, key: int, **task_kw) -> dict:
   from hdt.transfer import evaluate as ev
   policy = ev.compose(run, low) if low else ev.load_policy(run)
-  r = ev.evaluate(policy, task, episodes=episodes, key=key, **task_kw)
-  return {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in r.items()}
+  return _plain(ev.evaluate(policy, task, episodes=episodes, key=key, **task_kw))
+
+
+def _plain(x):
+  """JSON-able copy (arrays -> lists) of an evaluation result."""
+  if isinstance(x, dict):
+    return {k: _plain(v) for k, v in x.items()}
+  if isinstance(x, (list, tuple)):
+    return [_plain(v) for v in x]
+  return x.tolist() if hasattr(x, "tolist") else x
 
 
 def export(run: str | Path, name: str, command: str, low: str | None = None, task: str | None = None,
@@ -64,7 +73,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   task = task or meta["task"]
   tmp = dest.with_name("." + dest.name + ".tmp")
   shutil.rmtree(tmp, ignore_errors=True)
-  shutil.copytree(run, tmp, ignore=shutil.ignore_patterns("state", "state.old", "tb", "report", ".*"))
+  shutil.copytree(run, tmp, ignore=shutil.ignore_patterns("state", "state.old", "tb", "report", "metrics.csv", ".*"))
   if low:  # the HL's hand-off metadata names the zoo LL, not a local run directory
     for mp in [tmp / "meta.json", *tmp.glob("seed_*/meta.json")]:
       m = json.loads(mp.read_text())
@@ -76,9 +85,14 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   try:
     full = _evaluate(PREFIX + tmp_name, low, task, episodes, 1234, **task_kw)
     check = _evaluate(PREFIX + tmp_name, low, task, CHECK_EPISODES, CHECK_KEY, **task_kw)
-  except Exception:
-    shutil.rmtree(tmp, ignore_errors=True)
+    _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check)
+  except BaseException:
+    shutil.rmtree(tmp, ignore_errors=True)  # nothing half-written is left in zoo/
     raise
+  return dest
+
+
+def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check):
   sac = meta.get("sac", {})
   info = dict(name=name, level=meta["level"], agent=meta["agent"], task=task, task_options=task_kw,
               low=low, command=command,
@@ -92,7 +106,6 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
     shutil.rmtree(dest)
   dest.parent.mkdir(parents=True, exist_ok=True)
   tmp.rename(dest)
-  return dest
 
 
 def recheck(name: str) -> tuple[dict, dict]:
