@@ -26,8 +26,8 @@ class ZooError(ValueError):
 
 def resolve(path):
   """``zoo:NAME`` -> the entry's directory; any other path is returned unchanged."""
-  if isinstance(path, str) and path.startswith(PREFIX):
-    name = path[len(PREFIX):].strip("/")
+  if isinstance(path, (str, Path)) and str(path).startswith(PREFIX):  # argparse may give a Path
+    name = str(path)[len(PREFIX):].strip("/")
     d = ZOO_DIR / name
     if not name or not (d / "zoo.json").is_file():
       raise ZooError(f"no zoo entry {name!r}; entries: {', '.join(names()) or '(none)'} (see `hdt zoo`)")
