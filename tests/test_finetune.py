@@ -176,8 +176,8 @@ def test_finetune_starts_from_a_whole_sac_without_warmup(pm_runs, monkeypatch):
   # An HL saved before target_q / log_alpha were kept: A's critics as targets, fresh alpha, a warning.
   real_load_all = ckpt.load_all
 
-  def old_load_all(run):
-    p, metas = real_load_all(run)
+  def old_load_all(run, which="final"):
+    p, metas = real_load_all(run, which)
     return {k: v for k, v in p.items() if k in ("policy", "q")}, metas
 
   monkeypatch.setattr(ckpt, "load_all", old_load_all)
