@@ -95,7 +95,8 @@ def reuse_or_train(run_dir: Path, config, seeds: int, train: Callable[[], RunRes
   run_dir = Path(run_dir)
   try:
     meta = json.loads((run_dir / "meta.json").read_text())
-    same = (json.loads((run_dir / "config.json").read_text()) == _json(dataclasses.asdict(config))
+    saved = {k: v for k, v in json.loads((run_dir / "config.json").read_text()).items() if k != "budget_unit"}
+    same = (saved == _json(dataclasses.asdict(config))
             and meta.get("seeds") == list(range(seeds))
             and ckpt.list_seeds(run_dir) == list(range(seeds))
             and all(_json(meta.get(k)) == _json(v) for k, v in (expect or {}).items()))

@@ -119,7 +119,10 @@ def _common(p, out_help="run directory (default: runs/<what>)"):
   p.add_argument("--seeds", type=int, default=None, help="number of seeds, vmapped in one process "
                  "(default: 1 for training, all seeds of a run for eval)")
   p.add_argument("--preset", choices=PRESETS, default="cpu",
-                 help="budget: smoke (seconds), cpu (this machine, minutes), paper (paper budgets) "
+                 help="budget: smoke (seconds), cpu (this machine, minutes), paper (the authors' setup and "
+                      "budgets). Budgets (--total-env-steps) count LL env steps for LLs and Full, HL "
+                      "decisions for HLs (the paper's units); paper: 200k/1.2M/2.5M LL steps (point/arms/"
+                      "legged), 200k Waypoint, 400k Maze/Steps, 500k BlockPush/Insert HL decisions "
                       "(default: %(default)s)")
   p.add_argument("--out", type=_out_arg, default=None, help=out_help)
   p.add_argument("--quiet", action="store_true", help="no progress output (CI)")

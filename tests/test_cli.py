@@ -43,6 +43,9 @@ def test_train_writes_run_directories(runs):
     assert len(_numbers(d / "metrics.csv")) > 10
     assert len(list((d / "tb").rglob("events.out.tfevents.*"))) == 2, "TensorBoard event files missing"
   assert json.loads((runs / "low" / "config.json").read_text())["total_env_steps"] == 800
+  # budgets say their unit: LL env steps, HL decisions (the paper's)
+  assert json.loads((runs / "low" / "config.json").read_text())["budget_unit"] == "env steps"
+  assert json.loads((runs / "high" / "config.json").read_text())["budget_unit"] == "HL decisions"
 
 
 def test_eval_and_report_hold_numbers(runs, capsys):
