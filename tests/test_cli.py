@@ -376,7 +376,9 @@ def test_ctrl_c_exits_130_with_a_resume_hint_and_no_traceback(tmp_path):
                                                       os.environ.get("PYTHONPATH", "")]))
   argv = [sys.executable, "-m", "hdt.cli", "train", "low", "--agent", "point", "--out", str(out),
           *[a for a in TINY_LOW if a != "--quiet"], "--total-env-steps", "80000"]
-  p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+  # SIG_DFL in the child: a shell's background job (e.g. CI under nohup) would pass SIGINT on ignored.
+  p = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+                       preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
   try:
     for line in iter(p.stderr.readline, ""):
       if "steps" in line and "ETA" in line and ckpt.has_state(out):

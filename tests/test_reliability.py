@@ -609,12 +609,15 @@ def test_ctrl_c_during_a_save_finishes_the_save_first(tmp_path):
 
   mp = pytest.MonkeyPatch()
   mp.setattr(ckpt, "write_json_atomic", interrupted_write)
+  # A shell's background job starts with SIGINT ignored; this test needs Python's own handler.
+  previous = signal.signal(signal.SIGINT, signal.default_int_handler)
   try:
     with pytest.raises(KeyboardInterrupt):
       with rundir.deferred_interrupt():
         ckpt.save(run, 0, {"w": np.ones(3, np.float32)}, {"level": "low"})
   finally:
     mp.undo()
+    signal.signal(signal.SIGINT, previous)
   assert ckpt.load(run, 0)[1]["level"] == "low"
 
 
