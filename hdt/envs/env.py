@@ -55,22 +55,19 @@ class AgentTaskEnv:
     self._qpos0 = np.clip(np.array(m.qpos0, np.float32), self._qpos_lo, self._qpos_hi)
     # Episode starts (redrawn every episode): uniform qpos noise on the agent's hinge/slide joints and
     # qvel noise on its dofs; the LL reach task has its own distribution (AgentSpec.ll_qpos_*).
-    self._start = {}
-    for low in (False, True):
-      half = np.zeros(m.nq, np.float32)
-      half[movable] = agent.init_noise
-      offset = np.zeros(m.nq, np.float32)
-      if low and agent.ll_qpos_noise:
-        if len(agent.ll_qpos_noise) != len(movable):
-          raise ValueError(f"{agent.name}: ll_qpos_noise has {len(agent.ll_qpos_noise)} entries for "
-                           f"{len(movable)} hinge/slide joints")
-        half[movable] = agent.ll_qpos_noise
-      if low and agent.ll_qpos_offset:
-        offset[np.array(qpos_idx)[:len(agent.ll_qpos_offset)]] = agent.ll_qpos_offset
-      self._start[low] = (half, offset)
+    low = task.low_level
+    self._start_half = np.zeros(m.nq, np.float32)
+    self._start_half[movable] = agent.init_noise
+    self._start_offset = np.zeros(m.nq, np.float32)
+    if low and agent.ll_qpos_noise:
+      if len(agent.ll_qpos_noise) != len(movable):
+        raise ValueError(f"{agent.name}: ll_qpos_noise has {len(agent.ll_qpos_noise)} entries for "
+                         f"{len(movable)} hinge/slide joints")
+      self._start_half[movable] = agent.ll_qpos_noise
+    if low and agent.ll_qpos_offset:
+      self._start_offset[np.array(qpos_idx)[:len(agent.ll_qpos_offset)]] = agent.ll_qpos_offset
     self._qvel_noise = np.zeros(m.nv, np.float32)
     self._qvel_noise[self._qvel_idx] = agent.init_vel_noise
-    self._low = task.low_level
 
     def sensor(name):
       i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)
@@ -117,8 +114,8 @@ class AgentTaskEnv:
   def initial_physics(self, key: jax.Array) -> PhysicsState:
     """A fresh episode start: qpos0 (+ the LL offset) with uniform noise, clipped to the joint limits."""
     k_pos, k_vel = jax.random.split(key)
-    half, offset = self._start[self._low]
-    qpos = self._qpos0 + offset + half * jax.random.uniform(k_pos, half.shape, minval=-1.0, maxval=1.0)
+    half = self._start_half
+    qpos = self._qpos0 + self._start_offset + half * jax.random.uniform(k_pos, half.shape, minval=-1.0, maxval=1.0)
     qpos = jnp.clip(qpos, self._qpos_lo, self._qpos_hi)
     if self.agent.legged:
       qvel = self._qvel_noise * jax.random.normal(k_vel, self._qvel_noise.shape)
@@ -159,10 +156,9 @@ class AgentTaskEnv:
     fell = self.fell(q)
     metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()} | {"fall": fell.astype(jnp.float32)}
     steps = state.task["steps"] + 1
-    _, next_hi, next_obs = self._observe(ps, q, t)
+    next_lo, next_hi, next_obs = self._observe(ps, q, t)
     if not auto_reset:
-      lo, hi = self.obs_lo(ps), next_hi
-      return State(physics=ps, obs=next_obs, obs_hi=hi, obs_lo=lo, next_obs=next_obs, next_obs_hi=next_hi,
+      return State(physics=ps, obs=next_obs, obs_hi=next_hi, obs_lo=next_lo, next_obs=next_obs, next_obs_hi=next_hi,
                    reward=jnp.asarray(reward, jnp.float32), done=fell.astype(jnp.float32),
                    discount=1.0 - fell.astype(jnp.float32),
                    task=dict(state.task, t=t, steps=steps, solved=solved), metrics=metrics, key=key)

@@ -54,19 +54,6 @@ def _load(run, which: str, what: str):
   return params, [dict(metas[0], params=ckpt.params_label(metas))] + metas[1:]
 
 
-def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
-  """Refuses an HL over the LL run it was trained over if that LL changed since (retrained)."""
-  rec = hm.get("low")
-  if not isinstance(rec, dict) or not rec.get("sha256") or not isinstance(rec.get("path"), str):
-    return  # trained before hashes were recorded, or not over an LL run
-  if Path(rec["path"]).resolve() != Path(low).resolve():
-    return  # another LL: a transfer, not a dependency
-  if ckpt.content_hash(low, int(rec.get("seed_index", 0))) != rec["sha256"]:
-    raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
-                               f"content hash differs: was it retrained?); retrain the HL over it, or "
-                               f"restore the LL it was trained over")
-
-
 def trained_over(hm: dict, low: str | Path) -> int | None:
   """The seed of ``low`` the HL was trained over, if ``low`` is the LL run it was trained over."""
   rec = hm.get("low")
@@ -74,6 +61,17 @@ def trained_over(hm: dict, low: str | Path) -> int | None:
     return None
   same = lambda p: Path(ckpt.zoo_path(str(p))).resolve()
   return int(rec.get("seed_index", 0)) if same(rec["path"]) == same(low) else None
+
+
+def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
+  """Refuses an HL over the LL run it was trained over if that LL changed since (retrained)."""
+  seed = trained_over(hm, low)
+  if seed is None or not hm["low"].get("sha256"):
+    return  # another LL (a transfer, not a dependency), or trained before hashes were recorded
+  if ckpt.content_hash(low, seed) != hm["low"]["sha256"]:
+    raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
+                               f"content hash differs: was it retrained?); retrain the HL over it, or "
+                               f"restore the LL it was trained over")
 
 
 def load_policy(run: str | Path, which: str = "final") -> Policy:
@@ -115,10 +113,9 @@ def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str =
   # in a transfer, HL seed i drives LL seed i (cycling when one run has fewer seeds).
   own = trained_over(hm, low)
   n = len(hmetas) if own is not None else max(len(hmetas), len(lmetas))
-  pick = lambda tree, m: jax.tree.map(lambda x: x[np.arange(n) % m], tree)
-  low_policy = (jax.tree.map(lambda x: np.repeat(x[own:own + 1], n, axis=0), lp["policy"]) if own is not None
-                else pick(lp["policy"], len(lmetas)))
-  return Policy(pick(hp["policy"], len(hmetas)), hm, low_policy, lm, dm)
+  ll_idx = np.full(n, own) if own is not None else np.arange(n) % len(lmetas)
+  take = lambda tree, idx: jax.tree.map(lambda x: x[idx], tree)
+  return Policy(take(hp["policy"], np.arange(n) % len(hmetas)), hm, take(lp["policy"], ll_idx), lm, dm)
 
 
 def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, record=False,

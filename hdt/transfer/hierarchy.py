@@ -25,8 +25,8 @@ from hdt.envs.env import AgentTaskEnv
 
 LowPolicy = Callable[[Any, jax.Array], jax.Array]  # (params, obs_lo ++ (g - skill)) -> action
 
-# Per-LL-step metrics and how one HL step aggregates them.
-_REDUCE = {"success": jnp.max, "fall": jnp.max, "waypoints": jnp.sum}
+# Per-LL-step metrics and how one HL step aggregates them ("success" is the one at the step's end).
+_REDUCE = {"fall": jnp.max, "waypoints": jnp.sum}
 
 
 def skill(obs_hi: jax.Array) -> jax.Array:
