@@ -18,9 +18,9 @@ def _import_mjx_quietly() -> None:
 _import_mjx_quietly()
 
 from hdt import envs  # noqa: E402
-from hdt.transfer.evaluate import compose, evaluate, trajectory, zero_shot_matrix  # noqa: E402
+from hdt.transfer.evaluate import compose, evaluate, random_actions, trajectory, zero_shot_matrix  # noqa: E402
 from hdt.transfer.finetune import finetune_high  # noqa: E402
 from hdt.transfer.pipeline import train_full, train_high, train_low  # noqa: E402
 
-__all__ = ["envs", "train_low", "train_high", "train_full", "finetune_high", "compose", "evaluate", "zero_shot_matrix",
+__all__ = ["envs", "train_low", "train_high", "train_full", "finetune_high", "compose", "evaluate", "random_actions", "zero_shot_matrix",
            "trajectory"]

@@ -248,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
   zo.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="export: task options")
   zo.add_argument("--overwrite", action="store_true", help="export: replace an existing entry")
 
-  q = sub.add_parser("quickstart", help="PM LL + HL on Waypoint, HL transferred to an ant LL, in minutes",
+  q = sub.add_parser("quickstart", help="PM LL + HL on Waypoint in minutes, then zero-shot transfer tables with zoo policies",
                      formatter_class=fmt)
   _common(q, "root of the quickstart's runs (default: runs/quickstart)")
   q.add_argument("--overwrite", action="store_true", help="replace an existing quickstart in --out as a whole")
@@ -610,7 +610,7 @@ def cmd_report(args) -> int:
 
 
 def cmd_quickstart(args) -> int:
-  """PM LL + HL on Waypoint, a small ant LL, and the PM HL transferred zero-shot to the ant."""
+  """Trains a PM hierarchy on Waypoint (minutes), then shows zero-shot transfer with zoo policies."""
   from hdt.transfer import rundir
   root = _out_dir(args, "quickstart", kind="quickstart")
   seeds, quiet = _seeds(args, 2), args.quiet
@@ -618,31 +618,57 @@ def cmd_quickstart(args) -> int:
     return _quickstart(args, root, seeds, quiet)
 
 
+# Rows of the transfer table: (task, label, HL run ("here": the one trained here), LL run, uniform
+# random sub-goals instead of the HL's, paper's number: Table 1's zero-shot and own-HL cells).
+QUICKSTART_TRANSFERS = (
+    ("push1", "PM HL (zoo:arm_point/push1), zero-shot", "zoo:arm_point/push1", "zoo:arm3/low", False, ".17 ± .08"),
+    ("push1", "3Link's own HL (zoo:arm3/push1)", "zoo:arm3/push1", "zoo:arm3/low", False, ".96"),
+    ("push1", "uniform random sub-goals", "zoo:arm3/push1", "zoo:arm3/low", True, "—"),
+    ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low", False, "483 ± 39"),
+    ("waypoint", "uniform random sub-goals", "here", "zoo:ant/low", True, "—"),
+)
+
+
 def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
+  import json
+
   from hdt.report import fmt, markdown_table, run_report
-  from hdt.transfer import configs
-  from hdt.transfer.evaluate import compose, evaluate
+  from hdt.transfer import configs, zoo
+  from hdt.transfer.evaluate import compose, evaluate, random_actions
   from hdt.transfer.pipeline import train_high, train_low
   small = args.preset == "smoke"
-  pm = dict(total_env_steps=2000 if small else 8000, num_envs=8, updates_per_step=8, steps_per_chunk=25 if small else 125)
+  pm = dict(total_env_steps=2000 if small else 20_000, num_envs=8, updates_per_step=8,
+            steps_per_chunk=25 if small else 250)
   low = train_low("point", configs.low_config("point", **pm), seeds=seeds, out=root / "pm_low", quiet=quiet)
-  high = train_high("waypoint", low.run_dir, configs.high_config("waypoint", 32, **pm), seeds=seeds,
+  hl = dict(pm, total_env_steps=400 if small else 8000, steps_per_chunk=25 if small else 100)
+  high = train_high("waypoint", low.run_dir, configs.high_config("waypoint", **hl), seeds=seeds,
                     out=root / "pm_high", quiet=quiet)
-  ant = dict(total_env_steps=2000 if small else 30_000, num_envs=16, updates_per_step=2,
-             steps_per_chunk=25 if small else 125, batch_size=256,
-             buffer_size=30_000)  # the whole run fits; the paper's 1M buffer is 290 MB
-  ant_low = train_low("ant", configs.low_config("ant", **ant), seeds=seeds, out=root / "ant_low", quiet=quiet)
-  episodes = 4 if small else 20
-  rows = []
-  for name, ll in (("point", low.run_dir), ("ant", ant_low.run_dir)):
-    ev = evaluate(compose(high.run_dir, ll), "waypoint", episodes=episodes)
-    rows.append([name, "point", fmt(ev["return_mean"], ev["return_std"]),
-                 "1021 ± 43" if name == "point" else "483 ± 39"])
-  print("\nWaypoint return, zero-shot (HL trained on the point mass), "
-        f"{seeds} seeds x {episodes} episodes, minutes-scale budgets:\n")
-  print(markdown_table(["LL agent", "HL from", "hdt", "paper (full budget)"], rows))
+  episodes = 4 if small else 50
+  own = evaluate(compose(high.run_dir, low.run_dir), "waypoint", episodes=episodes)
+  print(f"\n1. Trained here: point-mass LL ({pm['total_env_steps']} steps) and Waypoint HL "
+        f"({hl['total_env_steps']} decisions), {seeds} seeds x {episodes} episodes\n")
+  print(markdown_table(["task", "HL", "LL", "hdt", "paper (full budget)"],
+                       [["waypoint", "PM HL", "PM LL", fmt(own["return_mean"], own["return_std"]), "1021 ± 43"]]))
+  rows, table = [], []
+  available = set(zoo.names())
+  for task, label, hl_run, ll_run, random, paper in QUICKSTART_TRANSFERS:
+    if ll_run[len(zoo.PREFIX):] not in available:
+      continue  # that LL is not in this checkout's zoo
+    policy = compose(high.run_dir if hl_run == "here" else hl_run, ll_run, box="scale")
+    ev = evaluate(random_actions(policy) if random else policy, task, episodes=episodes)
+    metric = "success" if task != "waypoint" else "return"
+    value = fmt(ev[f"{metric}_mean"], ev[f"{metric}_std"])
+    rows.append([task, metric, label, ll_run, value, paper])
+    table.append(dict(task=task, metric=metric, high=label, low=ll_run, mean=ev[f"{metric}_mean"],
+                      std=ev[f"{metric}_std"], episodes=episodes, seeds=len(ev["seeds"]), paper=paper))
+  print(f"\n2. Transfer, HL of agent A over the LL of agent B (zoo policies trained at paper-scale budgets "
+        f"here, see `hdt zoo`), {episodes} episodes per seed:\n")
+  print(markdown_table(["task", "metric", "HL", "LL", "hdt", "paper"], rows))
+  (root / "quickstart.json").write_text(json.dumps(dict(own=dict(return_mean=own["return_mean"],
+                                                                return_std=own["return_std"]),
+                                                        transfer=table), indent=1))
   rep = run_report(high.run_dir)
-  print(f"\nplots and report: {rep.parent}\nrun directories: {low.run_dir} {high.run_dir} {ant_low.run_dir}")
+  print(f"\nplots and report: {rep.parent}\nrun directories: {low.run_dir} {high.run_dir}")
   return 0
 
 

@@ -112,3 +112,14 @@ def test_save_to_relative_dir_and_killed_save_leaves_previous(tmp_path, monkeypa
   (tmp_path / "rel_run" / "seed_0").rename(tmp_path / "rel_run" / "seed_0.old")
   params, _ = ckpt.load("rel_run", 0)
   np.testing.assert_array_equal(params["w"], tree["w"])
+
+
+def test_uniform_actions_ignore_the_policy_and_draw_from_the_env_key():
+  from hdt.envs import make
+  from hdt.transfer.evaluate import _UniformActions
+  env = make("point", "reach")
+  wrapped = _UniformActions(env)
+  s = wrapped.reset(jax.random.PRNGKey(0))
+  a, b = wrapped.step(s, jnp.ones(env.action_size)), wrapped.step(s, -jnp.ones(env.action_size))
+  np.testing.assert_array_equal(a.obs, b.obs)  # the given action is ignored
+  assert not np.allclose(a.obs, env.step(s, jnp.ones(env.action_size)).obs)

@@ -31,6 +31,7 @@ class Policy:
   low_params: Any = None  # LL policy params, leading seed axis (paired with the HL seeds)
   low_meta: dict | None = None
   delta_max: float | None = None
+  uniform_actions: bool = False  # a random baseline: uniform actions in [-1, 1] instead of the policy's
 
   @property
   def agent(self) -> str:
@@ -72,6 +73,28 @@ def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
     raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
                                f"content hash differs: was it retrained?); retrain the HL over it, or "
                                f"restore the LL it was trained over")
+
+
+def random_actions(policy: Policy) -> Policy:
+  """``policy`` acting uniformly at random (for an HL: uniform sub-goals over the same LL), the
+  "random HL" baseline of a transfer table."""
+  return dataclasses.replace(policy, uniform_actions=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class _UniformActions:
+  """``env`` stepped with uniform random actions from the env's own key, whatever action it is given."""
+  env: Any
+
+  def __getattr__(self, name):
+    return getattr(self.env, name)
+
+  def reset(self, key):
+    return self.env.reset(key)
+
+  def step(self, state, action):
+    k_act, k_env = jax.random.split(state.key)
+    return self.env.step(state.replace(key=k_env), jax.random.uniform(k_act, action.shape, action.dtype, -1.0, 1.0))
 
 
 def load_policy(run: str | Path, which: str = "final") -> Policy:
@@ -158,7 +181,7 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
 
   def one(params, low_params, k):
     env = _env_for(policy, task, backend, low_params, **task_overrides)
-    return make_train(env, cfg).evaluate(params, k)
+    return make_train(_UniformActions(env) if policy.uniform_actions else env, cfg).evaluate(params, k)
 
   first_low = None if policy.low_params is None else jax.tree.map(lambda x: x[0], policy.low_params)
   check_memory(len(idx) * episodes * 4 * state_bytes(_env_for(policy, task, backend, first_low, **task_overrides)),
@@ -176,7 +199,7 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
       per_seed[extra] = np.asarray(out[extra])
   summary = {f"{k}_mean": float(np.mean(v)) for k, v in per_seed.items()}
   summary |= {f"{k}_std": float(np.std(v)) for k, v in per_seed.items()}
-  which = {"params": policy.meta.get("params", "final")}  # every number says which parameters made it
+  which = {"params": "uniform random actions" if policy.uniform_actions else policy.meta.get("params", "final")}  # every number says which parameters made it
   if policy.low_meta is not None:
     which["low_params"] = policy.low_meta.get("params", "final")
   return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary)
