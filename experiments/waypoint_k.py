@@ -1,0 +1,29 @@
+"""Waypoint return of a scripted greedy HL (sub-goal = the waypoint, clipped to the sub-goal box)
+over the zoo's point-mass LL, for the authors' k = 15 and hdt's k = 32 (RESULTS.md, Waypoint)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hdt.transfer.pipeline import high_env
+
+
+def greedy_return(k: int, episodes: int = 32, low: str = "zoo:point/low") -> tuple[float, float, float]:
+  env = high_env("waypoint", low, k=k)
+
+  def episode(key):
+    def step(s, _):
+      a = jnp.clip((s.obs_hi[2:4] - s.obs_hi[:2]) / env.delta_max, -1, 1)  # obs_hi = (point, waypoint)
+      s = env.step(s, a)
+      return s, (s.reward, s.metrics["waypoints"] > 0)
+    _, (r, hit) = jax.lax.scan(step, env.reset(key), None, length=env.horizon)
+    return r.sum(), hit.sum()
+
+  r, hits = jax.jit(jax.vmap(episode))(jax.random.split(jax.random.PRNGKey(0), episodes))
+  return float(np.mean(r)), float(np.std(r)), float(np.mean(hits))
+
+
+if __name__ == "__main__":
+  for k in (15, 32):
+    mean, std, hits = greedy_return(k)
+    print(f"k={k}: greedy HL return {mean:.0f} ± {std:.0f}, HL steps with a waypoint {hits:.1f} of 50")
