@@ -247,9 +247,25 @@ class SACState:
   update_steps: jax.Array  # int32, gradient updates done
 
 
-def make_optimizers(config: SACConfig):
-  """(policy, q, alpha) optax optimisers: plain Adam."""
-  return optax.adam(config.actor_lr), optax.adam(config.critic_lr), optax.adam(config.alpha_lr)
+# The SACConfig fields that change no array shape: ``make_update``'s update takes them as an
+# argument (``hyper``), so a grid over them runs as one vmapped program (hdt.agents.train.run).
+SWEEPABLE = ("actor_lr", "critic_lr", "alpha_lr", "tau", "gamma", "reward_scale")
+
+
+def hyperparams(config: SACConfig, hyper: dict | None = None) -> dict:
+  """The SWEEPABLE values: ``hyper``'s (scalars, possibly traced) where given, else the config's."""
+  unknown = set(hyper or {}) - set(SWEEPABLE)
+  if unknown:
+    raise ValueError(f"hyper-parameters {sorted(unknown)} cannot be vmapped (they change shapes or are "
+                     f"not SAC fields); vmappable: {', '.join(SWEEPABLE)}")
+  return {k: getattr(config, k) for k in SWEEPABLE} | dict(hyper or {})
+
+
+def make_optimizers(config: SACConfig, hyper: dict | None = None):
+  """(policy, q, alpha) optax optimisers: plain Adam (learning rates from :func:`hyperparams`; Adam's
+  state does not depend on them)."""
+  h = hyperparams(config, hyper)
+  return optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"]), optax.adam(h["alpha_lr"])
 
 
 def init_sac_state(networks: nets.SACNetworks, config: SACConfig, key: jax.Array) -> SACState:
@@ -278,28 +294,30 @@ def make_update(
     actor_regularizer: ActorRegularizer | None = None,
     reward_fn: RewardFn | None = None,
 ):
-  """Returns ``update(state, batch, noise, aux_state=None, reg_scale=1.0) -> (state, metrics)``.
+  """Returns ``update(state, batch, noise, aux_state=None, reg_scale=1.0, hyper=None) -> (state, metrics)``.
 
   ``noise``: standard-normal array of shape ``(2, batch, action_size)``, the reparameterisation
   noise of the critic target's next action (``noise[0]``) and of the actor loss (``noise[1]``),
   e.g. ``jax.random.normal(key, (2, batch_size, action_size))``.
 
+  ``hyper``: {name: scalar} overriding the config's :data:`SWEEPABLE` values (e.g. per grid point,
+  under vmap); None uses the config's, as constants.
+
   Order within one update: critic step (current alpha), actor step (new critic), alpha step (the
   actor's log-probs), then the soft target update.
   """
-  critic_loss, actor_loss, alpha_loss = make_losses(
-      networks,
-      gamma=config.gamma,
-      reward_scale=config.reward_scale,
-      target_entropy=config.target_entropy_for(action_size),
-      actor_regularizer=actor_regularizer,
-  )
-  pi_opt, q_opt, a_opt = make_optimizers(config)
-  critic_grad = jax.value_and_grad(critic_loss, has_aux=True)
-  actor_grad = jax.value_and_grad(actor_loss, has_aux=True)
-  alpha_grad = jax.value_and_grad(alpha_loss)
+  target_entropy = config.target_entropy_for(action_size)
 
-  def update(state: SACState, batch: Transition, noise, aux_state=None, reg_scale=1.0):
+  def update(state: SACState, batch: Transition, noise, aux_state=None, reg_scale=1.0, hyper=None):
+    h = hyperparams(config, hyper)
+    critic_loss, actor_loss, alpha_loss = make_losses(
+        networks, gamma=h["gamma"], reward_scale=h["reward_scale"], target_entropy=target_entropy,
+        actor_regularizer=actor_regularizer,
+    )
+    pi_opt, q_opt, a_opt = make_optimizers(config, h)
+    critic_grad = jax.value_and_grad(critic_loss, has_aux=True)
+    actor_grad = jax.value_and_grad(actor_loss, has_aux=True)
+    alpha_grad = jax.value_and_grad(alpha_loss)
     eps_critic, eps_actor = noise[0], noise[1]
     if reward_fn is not None:
       batch = batch.replace(reward=reward_fn(aux_state, batch).astype(batch.reward.dtype))
@@ -321,7 +339,7 @@ def make_update(
     upd, alpha_opt_state = a_opt.update(g, state.alpha_opt_state, state.log_alpha)
     log_alpha = optax.apply_updates(state.log_alpha, upd)
 
-    target_q_params = soft_update(state.target_q_params, q_params, config.tau)
+    target_q_params = soft_update(state.target_q_params, q_params, h["tau"])
     new_state = SACState(
         policy_params=policy_params,
         q_params=q_params,

@@ -43,6 +43,7 @@ from hdt.agents.sac import (
     RewardFn,
     SACConfig,
     SACState,
+    hyperparams,
     init_sac_state,
     make_update,
 )
@@ -235,15 +236,15 @@ def make_train(
     noise = _normal_from_bits(bits[:, batch_size:]).reshape(G, 2, batch_size, A)
     return batches, noise
 
-  def gradient_updates(agent: SACState, batches, noise, aux, reg_scale):
+  def gradient_updates(agent: SACState, batches, noise, aux, reg_scale, hyper):
     def one(agent, xs):
       batch, eps = xs
-      return update(agent, batch, eps, aux, reg_scale)
+      return update(agent, batch, eps, aux, reg_scale, hyper)
 
     agent, m = jax.lax.scan(one, agent, (batches, noise))
     return agent, jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), m)
 
-  def train_step(ts: TrainState, _):
+  def train_step(ts: TrainState, hyper):
     key, k_aux, k_bits = jax.random.split(ts.key, 3)
     bits = jax.random.bits(k_bits, (n_act_bits + G * n_upd_bits,), jnp.uint32)
     act_bits, upd_bits = bits[:n_act_bits].reshape(2, n_envs, A), bits[n_act_bits:]
@@ -276,7 +277,7 @@ def make_train(
     batches, noise = sample_batches(replay, upd_bits)
     reg_scale = schedule(env_steps)
     learn = env_steps >= config.learning_starts
-    upd = lambda agent: gradient_updates(agent, batches, noise, aux, reg_scale)
+    upd = lambda agent: gradient_updates(agent, batches, noise, aux, reg_scale, hyper)
     _, metrics_shape = jax.eval_shape(upd, ts.agent)
     skip = lambda agent: (
         agent, jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), metrics_shape)
@@ -305,9 +306,10 @@ def make_train(
     }
     return new_ts, step_metrics
 
-  def run_chunk(ts: TrainState) -> tuple[TrainState, dict]:
-    """``steps_per_chunk`` training steps; returns chunk-averaged scalar metrics."""
-    ts, m = jax.lax.scan(train_step, ts, None, length=config.steps_per_chunk)
+  def run_chunk(ts: TrainState, hyper: dict | None = None) -> tuple[TrainState, dict]:
+    """``steps_per_chunk`` training steps; returns chunk-averaged scalar metrics. ``hyper``: see
+    :func:`hdt.agents.sac.make_update` (per grid point under vmap)."""
+    ts, m = jax.lax.scan(lambda ts, _: train_step(ts, hyper), ts, None, length=config.steps_per_chunk)
     n_learn = jnp.sum(m["learn"])
     learn_mean = lambda x: jnp.sum(x * m["learn"]) / jnp.maximum(n_learn, 1.0)
     metrics = {k: learn_mean(v) for k, v in m["update"].items()}
@@ -381,12 +383,12 @@ def make_train(
     return out
 
   # ---------------------------------------------------------------------------------------------
-  def train(key: jax.Array) -> tuple[TrainState, dict]:
+  def train(key: jax.Array, hyper: dict | None = None) -> tuple[TrainState, dict]:
     """init + all chunks + a final evaluation: ``(ts, {"train": per-chunk metrics, "eval": ...})``."""
     k_init, k_eval = jax.random.split(key)
     ts = init(k_init)
     ts, chunk_metrics = jax.lax.scan(
-        lambda ts, _: run_chunk(ts), ts, None, length=config.num_chunks
+        lambda ts, _: run_chunk(ts, hyper), ts, None, length=config.num_chunks
     )
     return ts, {"train": chunk_metrics, "eval": evaluate(ts.agent.policy_params, k_eval)}
 
@@ -459,24 +461,39 @@ def eval_key(seed_key: jax.Array, index: int) -> jax.Array:
 
 class VmappedFns(NamedTuple):
   init: Callable  # (keys[S]) -> TrainState[S]
-  run_chunk: Callable  # TrainState[S] -> (TrainState[S], metrics[S]); donates its argument
+  run_chunk: Callable  # TrainState[S] (, hyper[S]) -> (TrainState[S], metrics[S]); donates the state
   evaluate: Callable  # (policy_params[S], keys[S]) -> metrics[S]
 
 
 @functools.lru_cache(maxsize=16)
-def vmapped(trainer: Trainer, num_seeds: int = 1) -> VmappedFns:
+def vmapped(trainer: Trainer, num_seeds: int = 1, hyper: bool = False) -> VmappedFns:
   """``jit(vmap(...))`` of the trainer's functions over a leading seed axis, cached per trainer;
-  with several devices the seeds are split across them (:mod:`hdt.agents.sharding`).
+  with several devices the seeds are split across them (:mod:`hdt.agents.sharding`). With
+  ``hyper``, ``run_chunk(ts, hyper)`` also takes per-seed hyper-parameters (:func:`run`'s grid).
 
   ``run_chunk`` donates the TrainState (the replay is updated in place): do not reuse its input.
   """
   mesh = sharding_lib.seed_mesh(num_seeds)
   over = lambda fn, n=1: sharding_lib.over_seeds(jax.vmap(fn), mesh, n)
+  chunk = (lambda ts, h: trainer.run_chunk(ts, h)) if hyper else (lambda ts: trainer.run_chunk(ts))
   return VmappedFns(
       init=jax.jit(over(trainer.init)),
-      run_chunk=jax.jit(over(trainer.run_chunk), donate_argnums=0),
+      run_chunk=jax.jit(over(chunk, 2 if hyper else 1), donate_argnums=0),
       evaluate=jax.jit(over(trainer.evaluate, 2)),
   )
+
+
+def grid_points(grid: dict | None) -> list[dict]:
+  """``{field: [v1, ..., vP]}`` (fields of hdt.agents.sac.SWEEPABLE, all lists of one length P) as
+  the P points ``[{field: v_i}]``; None -> ``[{}]``."""
+  if not grid:
+    return [{}]
+  hyperparams(SACConfig(), {k: 0.0 for k in grid})  # names the fields that cannot be vmapped
+  sizes = {k: len(v) for k, v in grid.items()}
+  if len(set(sizes.values())) != 1 or 0 in sizes.values():
+    raise ValueError(f"hyper={grid!r}: give every field the same number (> 0) of values, one per grid "
+                     f"point (lengths {sizes})")
+  return [dict(zip(grid, vals)) for vals in zip(*grid.values())]
 
 
 def run(
@@ -492,6 +509,7 @@ def run(
     initial_history: dict | None = None,
     initial_best: dict | None = None,
     on_chunk: Callable[[int, TrainState, dict, dict | None], None] | None = None,
+    hyper: dict | None = None,
     **plugins,
 ) -> RunResult:
   """Trains ``len(seeds)`` seeds in lock-step (vmapped) and returns params and history.
@@ -516,6 +534,11 @@ def run(
     new TrainState, the history so far (name -> list of per-seed arrays) and the best record,
     before ``progress_fn``; e.g. to save resumable state. ``ts`` is donated to the next chunk:
     copy what you keep.
+  hyper: ``{field: [v1, ..., vP]}`` over fields of :data:`hdt.agents.sac.SWEEPABLE` (see
+    :func:`grid_points`): P grid points x the seeds train as ONE vmapped program; every returned
+    leading axis (and ``initial_state``'s) is then points x seeds, point-major (runs
+    ``p * len(seeds) + i``), and ``config``'s values of those fields are not used. Each run gets the
+    same keys as the seed alone would, so a point matches its separate run up to float rounding.
   plugins: forwarded to :func:`make_train` (actor_regularizer, reward_fn, aux_init, ...).
 
   After every chunk the loss terms and parameters are checked (flags computed inside the jitted
@@ -543,21 +566,31 @@ def run(
   else:
     if plugins:
       raise ValueError(f"pass plugins {sorted(plugins)} to make_train, not with trainer=")
-    if dataclasses.replace(trainer.config, total_env_steps=config.total_env_steps) != config:
-      raise ValueError("trainer.config differs from config in more than total_env_steps")
-  fns = vmapped(trainer, len(seeds))
+    same = dict(total_env_steps=config.total_env_steps) | {k: getattr(config, k) for k in hyper or {}}
+    if dataclasses.replace(trainer.config, **same) != config:
+      raise ValueError("trainer.config differs from config in more than total_env_steps"
+                       + (" and the hyper fields" if hyper else ""))
+  points = grid_points(hyper)
+  n_runs = len(points) * len(seeds)
+  labels = seeds if hyper is None else [
+      f"{s} at {','.join(f'{k}={v}' for k, v in p.items())}" for p in points for s in seeds]
+  fns = vmapped(trainer, n_runs, hyper is not None)
   # Several devices (GPUs, hosts, or forced CPU host devices): each gets its share of the seeds.
-  sharding = sharding_lib.seed_sharding(len(seeds))
-  keys = sharding_lib.shard(seed_keys(seeds), sharding)
+  sharding = sharding_lib.seed_sharding(n_runs)
+  keys = sharding_lib.shard(jnp.tile(seed_keys(seeds), (len(points), 1)), sharding)
   if initial_state is None:
     ts = fns.init(keys)
   else:
     ts = sharding_lib.shard(initial_state, sharding)
-    if np.shape(ts.env_steps) != (len(seeds),):
+    if np.shape(ts.env_steps) != (n_runs,):
       raise ValueError(
-          f"initial_state has seed axis {np.shape(ts.env_steps)}, expected ({len(seeds)},)"
+          f"initial_state has seed axis {np.shape(ts.env_steps)}, expected ({n_runs},)"
       )
   chunk_fn, eval_fn = fns.run_chunk, fns.evaluate
+  if hyper is not None:
+    per_run = {k: sharding_lib.shard(jnp.asarray([p[k] for p in points for _ in seeds], jnp.float32),
+                                     sharding) for k in hyper}
+    chunk_fn = lambda ts: fns.run_chunk(ts, per_run)
   start_chunk = int(np.asarray(ts.env_steps).reshape(-1)[0]) // chunk_steps
 
   # Records are per-seed arrays; a resumed run continues the saved history (and its wall clock).
@@ -575,7 +608,7 @@ def run(
     k = jax.vmap(eval_key, in_axes=(0, None))(keys, index)
     ev = sharding_lib.to_host(eval_fn(ts.agent.policy_params, k))
     ev = {f"eval/{name}": np.asarray(v) for name, v in ev.items()}
-    ev["eval/env_steps"] = np.full(len(seeds), step)
+    ev["eval/env_steps"] = np.full(n_runs, step)
     for name, v in ev.items():
       hist.setdefault(name, []).append(v)
     if index > start_chunk:  # not the evaluation at the start
@@ -593,9 +626,9 @@ def run(
     ts, m = chunk_fn(ts)
     m = {k: np.asarray(v) for k, v in sharding_lib.to_host(m).items()}
     check_finite({k: m.pop(k) for k in list(m) if k.startswith(NONFINITE)}, c * chunk_steps,
-                 config.num_envs, seeds)
+                 config.num_envs, labels)
     step = (c + 1) * chunk_steps
-    m["walltime"] = np.full(len(seeds), t_offset + time.perf_counter() - t0)
+    m["walltime"] = np.full(n_runs, t_offset + time.perf_counter() - t0)
     for k, v in m.items():
       hist.setdefault(k, []).append(v)
     if step % eval_every == 0 or c == config.num_chunks - 1:
