@@ -210,7 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
   _low_params(ev)
   _common(ev, "where eval.json (and a heatmap) go (default: runs/eval)")
 
-  sw = sub.add_parser("sweep", help="seeds x a hyper-parameter grid (seeds vmapped, grid points in turn)",
+  sw = sub.add_parser("sweep", help="seeds x a hyper-parameter grid (seeds and same-shape grid points vmapped)",
                       formatter_class=fmt)
   sw.add_argument("level", choices=("low", "high", "full"))
   sw.add_argument("--agent", default=None)
@@ -525,19 +525,18 @@ def _sweep(args, grid: dict, root: Path, seeds: int, k, overrides: dict) -> list
   import numpy as np
   from hdt.report import fmt
   from hdt.transfer import pipeline
-  rows = []
+  names, runs = [], []
   for values in itertools.product(*grid.values()):
     point = dict(zip(grid, values))
-    name = ",".join(f"{k_}={v}" for k_, v in point.items())
-    cfg = _sac_config(args, args.level, args.agent, args.task, k=k, **point)
-    out = root / name.replace("/", "_")
-    common = dict(seeds=seeds, out=out, backend=args.backend, quiet=args.quiet)
-    if args.level == "low":
-      res = pipeline.train_low(args.agent, cfg, **common, **overrides)
-    elif args.level == "high":
-      res = pipeline.train_high(args.task, args.low, cfg, **common, **overrides)
-    else:
-      res = pipeline.train_full(args.agent, args.task, cfg, **common, **overrides)
+    names.append(",".join(f"{k_}={v}" for k_, v in point.items()))
+    runs.append((_sac_config(args, args.level, args.agent, args.task, k=k, **point),
+                 root / names[-1].replace("/", "_")))
+  stage = {"low": dict(agent=args.agent), "high": dict(task=args.task, low=args.low),
+           "full": dict(agent=args.agent, task=args.task)}[args.level]
+  # points differing only in learning rates, tau, gamma or reward scale train as one vmapped program
+  results = pipeline.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)
+  rows = []
+  for name, (_, out), res in zip(names, runs, results):
     metric = next((m for m in ("eval/success_max", "eval/return") if m in res.history), None)
     final = res.history[metric][:, -1]
     rows.append([name, metric[5:], fmt(np.mean(final), np.std(final)), str(out)])

@@ -1,5 +1,6 @@
 """Hierarchy and hand-off: LL/HL training, checkpoints, composition and zero-shot matrices."""
 
+import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -123,3 +124,26 @@ def test_uniform_actions_ignore_the_policy_and_draw_from_the_env_key():
   a, b = wrapped.step(s, jnp.ones(env.action_size)), wrapped.step(s, -jnp.ones(env.action_size))
   np.testing.assert_array_equal(a.obs, b.obs)  # the given action is ignored
   assert not np.allclose(a.obs, env.step(s, jnp.ones(env.action_size)).obs)
+
+
+def test_sweep_trains_same_shape_points_together_and_writes_each_run(tmp_path):
+  """pipeline.sweep: two learning rates (one vmapped program) and another batch size (in turn); each
+  grid point writes the run directory train_low writes, with the results of training it alone."""
+  from hdt.transfer.pipeline import sweep
+  base = configs.low_config("point", total_env_steps=400, num_envs=2, steps_per_chunk=100, batch_size=16,
+                            buffer_size=1000, learning_starts=100, num_eval_episodes=4)
+  cfgs = [dataclasses.replace(base, actor_lr=lr, critic_lr=lr) for lr in (1e-4, 3e-4)]
+  cfgs.append(dataclasses.replace(base, batch_size=32))
+  runs = [(c, tmp_path / "sweep" / f"p{i}") for i, c in enumerate(cfgs)]
+  results = sweep("low", runs, seeds=2, agent="point", quiet=True)
+  alone = train_low("point", cfgs[1], seeds=2, out=tmp_path / "alone", quiet=True)
+  hashed = {"tb", "d", "ocdbt.process_0"}  # event files and array shards named by time or content hash
+  listing = lambda d: sorted(str(p.relative_to(d)) for p in d.rglob("*") if not hashed & set(p.relative_to(d).parts))
+  for (cfg, out), res in zip(runs, results):
+    assert res.run_dir == out and listing(out) == listing(alone.run_dir)
+    assert ckpt.load_meta(out)["sac"]["actor_lr"] == cfg.actor_lr
+    assert res.history["eval/return"].shape == alone.history["eval/return"].shape
+  for k, v in alone.history.items():
+    if k != "walltime":
+      np.testing.assert_allclose(results[1].history[k], v, rtol=1e-4, atol=1e-5, equal_nan=True, err_msg=k)
+  assert not np.allclose(results[0].history["critic_loss"], results[1].history["critic_loss"], rtol=1e-3)

@@ -17,7 +17,7 @@ import numpy as np
 
 from hdt.agents import networks as nets
 from hdt.agents import train as sac_train
-from hdt.agents.sac import SACConfig
+from hdt.agents.sac import SWEEPABLE, SACConfig
 from hdt.envs import make
 from hdt.envs.robot import check_recorded, robot_record
 from hdt.envs.spec import AgentSpec
@@ -81,47 +81,78 @@ def _run(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str
   ``out`` is claimed (hdt.transfer.rundir: owned by hdt, locked, replaced whole with ``overwrite``)
   before anything is compiled. save_extra(final TrainState) -> {name: pytree with a seed axis}
   saved next to "policy" and "q" in every seed's checkpoint (e.g. the discriminator of an aligned LL)."""
-  check_train_memory(env, config, seeds)
+  return _run_points(env, config, seeds, [({}, out)], meta, quiet, label, resume, save_every, save_extra,
+                     overwrite, **plugins)[0]
+
+
+def _run_points(env, config: SACConfig, seeds, points: list, meta: dict, quiet: bool, label: str,
+                resume=False, save_every: int | None = None, save_extra: Callable[[Any], dict] | None = None,
+                overwrite: bool = False, **plugins) -> list[RunResult]:
+  """:func:`_run` for grid points ``[(hyper, out)]`` (hyper: values of SWEEPABLE fields replacing
+  ``config``'s) trained together as one vmapped program (``hdt.agents.train.run(hyper=...)``); each
+  point writes its own run directory as if trained alone. Only a single point can resume."""
+  grid = {k: [h[k] for h, _ in points] for k in points[0][0]}
+  configs = [dataclasses.replace(config, **h) for h, _ in points]
+  check_train_memory(env, config, seeds, len(points))
   seeds = sac_train.seed_list(seeds)
-  run_dir, source = _outputs(out, resume, overwrite)
+  if resume is not False and len(points) > 1:
+    raise ValueError("resume continues one run: resume the grid points one at a time")
+  outputs = [_outputs(out, resume, overwrite) for _, out in points]
+  source = outputs[0][1]
   save_steps = _save_steps(config, save_every)
   ts, trainer = plugins.pop("initial_state", None), plugins.pop("trainer", None)
   trainer = trainer or sac_train.make_train(env, config, **plugins)
-  info = dict(config=dataclasses.asdict(config), meta=meta, seeds=seeds)
+  infos = [dict(config=dataclasses.asdict(c), meta=dict(meta, sac=dataclasses.asdict(c)) if grid else meta,
+                seeds=seeds) for c in configs]
   if source is not None:
-    _check_resumable(source, info)
-  claim = (contextlib.nullcontext() if run_dir is None else
-           rundir.claim(run_dir, resume=source is not None and _same(source, run_dir), overwrite=overwrite))
-  with claim:
+    _check_resumable(source, infos[0])
+  S = len(seeds)
+  part = (lambda tree, p: tree) if len(points) == 1 else (
+      lambda tree, p: jax.tree.map(lambda x: x[p * S:(p + 1) * S], tree))
+  with contextlib.ExitStack() as claims:
+    for run_dir, _ in outputs:
+      if run_dir is not None:
+        claims.enter_context(rundir.claim(run_dir, resume=source is not None and _same(source, run_dir),
+                                          overwrite=overwrite))
+    run_dir = outputs[0][0]
     history = best = None
     if run_dir is not None and source is not None and _same(source, run_dir):
       ckpt.settle_state(run_dir)
     if source is not None:
-      ts, history, best = _resume(source, trainer, info)
+      ts, history, best = _resume(source, trainer, infos[0])
 
     def on_chunk(step, ts, hist, best):
-      if run_dir is not None and (step // save_steps > (step - config.env_steps_per_chunk) // save_steps
-                                  or step == config.total_env_steps):
-        with rundir.deferred_interrupt():
-          ckpt.save_state(run_dir, ts, {k: np.stack(v, axis=1) for k, v in hist.items()},
-                          dict(info, env_steps=step), best)
+      if any(d is not None for d, _ in outputs) and (
+          step // save_steps > (step - config.env_steps_per_chunk) // save_steps or step == config.total_env_steps):
+        hist = {k: np.stack(v, axis=1) for k, v in hist.items()}
+        for p, (run_dir, _) in enumerate(outputs):
+          if run_dir is not None:
+            with rundir.deferred_interrupt():
+              ckpt.save_state(run_dir, part(ts, p), part(hist, p), dict(infos[p], env_steps=step),
+                              None if best is None else part(best, p))
 
     progress = print_progress(config.total_env_steps, quiet, label)
     try:
       with counted_mujoco_warnings(quiet) as warned:
         res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
                             initial_history=history, initial_best=best, eval_at_start=history is None,
-                            on_chunk=on_chunk)
+                            on_chunk=on_chunk, **({"hyper": grid} if grid else {}))
     except sac_train.TrainingDiverged as e:
-      kept = run_dir is not None and ckpt.has_state(run_dir)
-      note = (f" The last good training state is kept in {ckpt.state_dir(run_dir)}." if kept else "")
+      kept = [d for d, _ in outputs if d is not None and ckpt.has_state(d)]
+      note = (f" The last good training state is kept in {ckpt.state_dir(kept[0])}." if len(kept) == 1 else
+              " The last good training states are kept in each run directory's state/." if kept else "")
       note += f" MuJoCo reported {len(warned)} simulation warning(s) before." if warned else ""
       raise sac_train.TrainingDiverged(str(e) + note, e.term, e.env_step, e.seeds) from None
     params = dict(res.params, **(save_extra(res.state) if save_extra else {}))
-    if run_dir is not None:
-      with rundir.deferred_interrupt():  # a Ctrl-C here would leave some seeds unwritten
-        _write_run(run_dir, config, meta, seeds, params, res)
-  return RunResult(run_dir, params, res.history, meta, res.best)
+    results = []
+    for p, (run_dir, _) in enumerate(outputs):
+      res_p = sac_train.RunResult(part(params, p), part(res.history, p), part(res.state, p),
+                                  None if res.best is None else part(res.best, p))
+      if run_dir is not None:
+        with rundir.deferred_interrupt():  # a Ctrl-C here would leave some seeds unwritten
+          _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p)
+      results.append(RunResult(run_dir, res_p.params, res_p.history, infos[p]["meta"], res_p.best))
+  return results
 
 
 @contextlib.contextmanager
@@ -183,13 +214,14 @@ def check_memory(need: int, what: str, fix: str) -> None:
                      f"available: {fix}")
 
 
-def check_train_memory(env, config: SACConfig, seeds) -> None:
-  """Estimate: per seed, the replay buffer (obs, next obs, action, reward, discount in float32) and
-  the parallel training and evaluation env states."""
+def check_train_memory(env, config: SACConfig, seeds, points: int = 1) -> None:
+  """Estimate: per seed (and grid point), the replay buffer (obs, next obs, action, reward, discount
+  in float32) and the parallel training and evaluation env states."""
   n = seeds if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool) else \
       (len(seeds) if hasattr(seeds, "__len__") else 1)
   if n <= 0:
     return  # seed_list explains
+  n *= points
   transition = 4 * (2 * env.observation_size + env.action_size + 2)
   per_seed = (config.buffer_size * transition
               + (config.num_envs + config.num_eval_episodes) * state_bytes(env))
@@ -369,11 +401,16 @@ def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, ba
     kw = {} if disc is None else {"disc": disc}
     return align_low(agent, imitate, config, seeds=seeds, out=out, backend=backend, quiet=quiet,
                      resume=resume, save_every=save_every, overwrite=overwrite, **kw, **env_overrides)
+  env, config, meta, label, extra = _low_stage(agent, config, backend, **env_overrides)
+  return _run(env, config, seeds, out, meta, quiet, label, resume, save_every, extra, overwrite)
+
+
+def _low_stage(agent: str, config: SACConfig | None, backend="auto", **env_overrides):
+  """(env, config, meta, progress label, save_extra) of :func:`train_low` (without ``imitate``)."""
   check_env_overrides(env_overrides, agent, "reach")
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = config or configs.low_config(agent)
-  meta = env_meta(env, "low", config, env_overrides=env_overrides)
-  return _run(env, config, seeds, out, meta, quiet, f"low {agent}", resume, save_every, overwrite=overwrite)
+  return env, config, env_meta(env, "low", config, env_overrides=env_overrides), f"low {agent}", None
 
 
 def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):
@@ -459,13 +496,20 @@ def train_high(task: str, low: str | Path, config: SACConfig | None = None, seed
                **task_overrides) -> RunResult:
   """HL SAC on ``task`` over the frozen LL in ``low`` (its seed ``low_seed`` drives every HL seed;
   ``low_params``: the LL's "best" evaluation's parameters (default, as the authors) or "final")."""
+  env, config, meta, label, extra = _high_stage(task, low, config, backend, low_seed, k, low_params,
+                                                **task_overrides)
+  return _run(env, config, seeds, out, meta, quiet, label, resume, save_every, extra, overwrite)
+
+
+def _high_stage(task: str, low: str | Path, config: SACConfig | None, backend="auto", low_seed: int = 0,
+                k: int | None = None, low_params: str = LOW_PARAMS, **task_overrides):
+  """(env, config, meta, progress label, save_extra) of :func:`train_high`."""
   check_env_overrides(task_overrides, task=task)
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params, k=k, **task_overrides)
   config = config or configs.high_config(task, env.k)
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
                   low=low_rec, task_overrides=task_overrides, hl_obs=_hl_obs_meta(env))
-  return _run(env, config, seeds, out, meta, quiet, f"high {task}", resume, save_every, overwrite=overwrite,
-              save_extra=sac_extras)
+  return env, config, meta, f"high {task}", sac_extras
 
 
 def sac_extras(ts) -> dict:
@@ -478,12 +522,44 @@ def train_full(agent: str, task: str, config: SACConfig | None = None, seeds=1, 
                backend="auto", quiet=False, resume=False, save_every=None, overwrite=False,
                **env_overrides) -> RunResult:
   """The flat 'Full' baseline: SAC on the task with the agent's own torques."""
+  env, config, meta, label, extra = _full_stage(agent, task, config, backend, **env_overrides)
+  return _run(env, config, seeds, out, meta, quiet, label, resume, save_every, extra, overwrite)
+
+
+def _full_stage(agent: str, task: str, config: SACConfig | None, backend="auto", **env_overrides):
+  """(env, config, meta, progress label, save_extra) of :func:`train_full`."""
   check_env_overrides(env_overrides, agent, task)
   env = make(agent, task, backend=backend, **env_overrides)
   config = config or configs.full_config(agent, task)
-  meta = env_meta(env, "full", config, env_overrides=env_overrides)
-  return _run(env, config, seeds, out, meta, quiet, f"full {agent}/{task}", resume, save_every,
-              overwrite=overwrite)
+  return env, config, env_meta(env, "full", config, env_overrides=env_overrides), f"full {agent}/{task}", None
+
+
+def sweep(level: str, runs: list[tuple[SACConfig, str | Path | None]], seeds=1, *, backend="auto",
+          quiet=False, overwrite=False, **stage) -> list[RunResult]:
+  """Trains each ``(config, out)`` of ``runs`` at ``level`` ("low": agent=..., "high": task=..., low=...,
+  "full": agent=..., task=...; further keywords as train_low/train_high/train_full). Configs that
+  differ only in fields of :data:`hdt.agents.sac.SWEEPABLE` (learning rates, tau, gamma, reward
+  scale) train together, seeds and grid points as one vmapped program; the other groups (other
+  network or batch sizes, num_envs, ...) in turn. Every run directory is written as by train_*.
+  Returns the results in the order of ``runs``."""
+  if level not in ("low", "high", "full"):
+    raise ValueError(f"level={level!r}: sweep trains 'low', 'high' or 'full'")
+  setup = {"low": _low_stage, "high": _high_stage, "full": _full_stage}[level]
+  groups: dict[tuple, list[int]] = {}
+  for i, (cfg, _) in enumerate(runs):
+    shape = tuple((k, v) for k, v in dataclasses.asdict(cfg).items() if k not in SWEEPABLE)
+    groups.setdefault(shape, []).append(i)
+  results: list[RunResult | None] = [None] * len(runs)
+  for members in groups.values():
+    cfgs = [runs[i][0] for i in members]
+    varied = [k for k in SWEEPABLE if len({getattr(c, k) for c in cfgs}) > 1]
+    env, config, meta, label, extra = setup(config=cfgs[0], backend=backend, **stage)
+    points = [({k: getattr(runs[i][0], k) for k in varied}, runs[i][1]) for i in members]
+    for i, r in zip(members, _run_points(env, config, seeds, points, meta, quiet,
+                                         label + (f" x{len(points)} points" if len(points) > 1 else ""),
+                                         save_extra=extra, overwrite=overwrite)):
+      results[i] = r
+  return results
 
 
 for _f in (train_low, train_high, train_full):
