@@ -1,11 +1,20 @@
-"""Where hdt keeps files between runs: the compiled physics custom call and JAX's compile cache."""
+"""Where hdt keeps files between runs: the compiled physics custom call, JAX's compile cache and
+ahead-of-time compiled training programs."""
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import os
+import pickle
+import tempfile
 from pathlib import Path
+from typing import Callable
 
 import jax
+import jaxlib
+import mujoco
+from jax.experimental import serialize_executable
 
 
 def cache_dir() -> Path:
@@ -19,3 +28,44 @@ def enable_compile_cache(path: str | os.PathLike | None = None) -> Path:
   path = path or os.environ.get("JAX_COMPILATION_CACHE_DIR") or cache_dir() / "jax"
   jax.config.update("jax_compilation_cache_dir", str(path))
   return Path(path)
+
+
+@functools.cache
+def code_version() -> str:
+  """A hash of hdt's source files, the jax/jaxlib/mujoco versions, the devices and XLA flags: a
+  compiled program saved by other code or for another machine setup is never loaded."""
+  root = Path(__file__).parent
+  h = hashlib.sha256(f"{jax.__version__} {jaxlib.__version__} {mujoco.__version__} {jax.devices()} "
+                     f"{os.environ.get('XLA_FLAGS', '')} {jax.config.jax_enable_x64}".encode())
+  for path in sorted(root.rglob("*")):
+    if path.suffix in (".py", ".cc") and "__pycache__" not in path.parts:
+      h.update(str(path.relative_to(root)).encode() + path.read_bytes())
+  return h.hexdigest()
+
+
+def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
+  """``jitted`` (a ``jax.jit`` function) compiled ahead of time, loaded from ``cache_dir()/aot``
+  when a program was saved under ``key`` (which must name everything the program depends on besides
+  hdt's code) by this code version; otherwise lowered for ``abstract_args()`` (ShapeDtypeStructs),
+  compiled and saved. A loaded program pays no tracing, lowering or compiling. Programs with host
+  callbacks (``jax.pure_callback``) are not saved: their callbacks live in one process only. Only
+  while the persistent compile cache is on (:func:`enable_compile_cache`, as the CLI does); else
+  returns ``jitted`` itself."""
+  if not jax.config.jax_compilation_cache_dir:
+    return jitted
+  path = cache_dir() / "aot" / f"{hashlib.sha256((key + code_version()).encode()).hexdigest()[:32]}.pkl"
+  if path.exists():
+    try:
+      with open(path, "rb") as f:
+        return serialize_executable.deserialize_and_load(*pickle.load(f))
+    except Exception:  # noqa: BLE001 - damaged or stale file: compile afresh and replace it
+      pass
+  lowered = jitted.lower(*abstract_args())
+  program = lowered.compile()
+  if "callback" not in lowered.as_text():
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "wb") as f:
+      pickle.dump(serialize_executable.serialize(program), f)
+    os.replace(tmp, path)  # atomic: a concurrent run never reads half a file
+  return program

@@ -216,3 +216,34 @@ def test_plugins_are_wired_into_the_training_step():
   assert float(m["regularizer"]) == pytest.approx(2.0)
   assert float(m["regularizer_weight"]) == pytest.approx(0.5)
   assert int(ts.agent.update_steps) == 10 - 4 + 1
+
+
+def test_cached_programs_load_without_tracing(tmp_path, monkeypatch):
+  """With the compile cache on and a cache_key, run() saves its compiled programs; a second run with
+  the same key loads them (the env is not traced again) and trains identically."""
+  import hdt.cache
+  traces = []
+
+  class Counted(PointGoal):
+    def step(self, state, action):
+      traces.append(1)  # Python runs only while tracing
+      return super().step(state, action)
+
+  monkeypatch.setenv("HDT_CACHE_DIR", str(tmp_path))
+  old = jax.config.jax_compilation_cache_dir
+  hdt.cache.enable_compile_cache(tmp_path / "jax")
+  try:
+    env = Counted()
+    cfg = dataclasses.replace(CFG, total_env_steps=1000, steps_per_chunk=500)
+    first = run(env, cfg, [0], cache_key="toy point goal", trainer=make_train(env, cfg))
+    n_cold = len(traces)
+    assert n_cold > 0 and len(list((tmp_path / "aot").glob("*.pkl"))) == 3  # init, run_chunk, evaluate
+    again = run(env, cfg, [0], cache_key="toy point goal", trainer=make_train(env, cfg))
+    assert len(traces) == n_cold  # loaded, not traced
+    for k, v in first.history.items():
+      if k != "walltime":
+        np.testing.assert_array_equal(again.history[k], v, err_msg=k)
+    other = run(env, cfg, [0], cache_key="another env", trainer=make_train(env, cfg))
+    assert len(traces) > n_cold  # another key compiles afresh
+  finally:
+    jax.config.update("jax_compilation_cache_dir", old)

@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from hdt import cache
 from hdt.agents import networks as nets
 from hdt.agents import normalizer
 from hdt.agents import sharding as sharding_lib
@@ -496,6 +497,21 @@ def grid_points(grid: dict | None) -> list[dict]:
   return [dict(zip(grid, vals)) for vals in zip(*grid.values())]
 
 
+def _ahead_of_time(fns: VmappedFns, key: str, keys: jax.Array, hyper: dict | None) -> VmappedFns:
+  """``fns`` as programs loaded from (or compiled into) :func:`hdt.cache.compiled` under ``key``;
+  abstract arguments are only traced when nothing was saved yet."""
+  keys_a = jax.ShapeDtypeStruct(keys.shape, keys.dtype)
+  ts_a = lambda: jax.eval_shape(fns.init, keys_a)
+  hyper_a = () if hyper is None else ({k: jax.ShapeDtypeStruct(keys.shape[:1], jnp.float32) for k in hyper},)
+  chunk = cache.compiled(fns.run_chunk, key + "|run_chunk", lambda: (ts_a(), *hyper_a))
+  return VmappedFns(
+      init=cache.compiled(fns.init, key + "|init", lambda: (keys_a,)),
+      run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
+      evaluate=cache.compiled(fns.evaluate, key + "|evaluate",
+                              lambda: (ts_a().agent.policy_params, keys_a)),
+  )
+
+
 def run(
     env,
     config: SACConfig,
@@ -510,6 +526,7 @@ def run(
     initial_best: dict | None = None,
     on_chunk: Callable[[int, TrainState, dict, dict | None], None] | None = None,
     hyper: dict | None = None,
+    cache_key: str | None = None,
     **plugins,
 ) -> RunResult:
   """Trains ``len(seeds)`` seeds in lock-step (vmapped) and returns params and history.
@@ -539,6 +556,9 @@ def run(
     leading axis (and ``initial_state``'s) is then points x seeds, point-major (runs
     ``p * len(seeds) + i``), and ``config``'s values of those fields are not used. Each run gets the
     same keys as the seed alone would, so a point matches its separate run up to float rounding.
+  cache_key: a string naming everything the trainer's programs depend on besides hdt's code (env and
+    its options, config, plug-ins); with it, the compiled programs are saved and later runs with the
+    same key load them (:func:`hdt.cache.compiled`) instead of tracing and compiling (one device).
   plugins: forwarded to :func:`make_train` (actor_regularizer, reward_fn, aux_init, ...).
 
   After every chunk the loss terms and parameters are checked (flags computed inside the jitted
@@ -578,6 +598,8 @@ def run(
   # Several devices (GPUs, hosts, or forced CPU host devices): each gets its share of the seeds.
   sharding = sharding_lib.seed_sharding(n_runs)
   keys = sharding_lib.shard(jnp.tile(seed_keys(seeds), (len(points), 1)), sharding)
+  if cache_key is not None and sharding is None:
+    fns = _ahead_of_time(fns, f"{cache_key}|runs={n_runs}|hyper={sorted(hyper or {})}", keys, hyper)
   if initial_state is None:
     ts = fns.init(keys)
   else:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import json
 import os
 import sys
 import time
@@ -101,6 +102,12 @@ def _run_points(env, config: SACConfig, seeds, points: list, meta: dict, quiet: 
   source = outputs[0][1]
   save_steps = _save_steps(config, save_every)
   ts, trainer = plugins.pop("initial_state", None), plugins.pop("trainer", None)
+  # Compiled programs are saved and reloaded (hdt.cache.compiled) when the key below names all they
+  # depend on: not with plug-ins or a caller's trainer (functions no key can name).
+  backend = getattr(env, "backend", None) or getattr(getattr(env, "env", None), "backend", None)
+  cache_key = None if plugins or trainer or not backend else json.dumps(
+      dict(env=type(env).__name__, backend=backend, meta=meta, config=dataclasses.asdict(config)),
+      sort_keys=True, default=str)
   trainer = trainer or sac_train.make_train(env, config, **plugins)
   infos = [dict(config=dataclasses.asdict(c), meta=dict(meta, sac=dataclasses.asdict(c)) if grid else meta,
                 seeds=seeds) for c in configs]
@@ -136,7 +143,7 @@ def _run_points(env, config: SACConfig, seeds, points: list, meta: dict, quiet: 
       with counted_mujoco_warnings(quiet) as warned:
         res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
                             initial_history=history, initial_best=best, eval_at_start=history is None,
-                            on_chunk=on_chunk, **({"hyper": grid} if grid else {}))
+                            on_chunk=on_chunk, cache_key=cache_key, **({"hyper": grid} if grid else {}))
     except sac_train.TrainingDiverged as e:
       kept = [d for d, _ in outputs if d is not None and ckpt.has_state(d)]
       note = (f" The last good training state is kept in {ckpt.state_dir(kept[0])}." if len(kept) == 1 else
