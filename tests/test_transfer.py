@@ -1,6 +1,7 @@
 """Hierarchy and hand-off: LL/HL training, checkpoints, composition and zero-shot matrices."""
 
 import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
