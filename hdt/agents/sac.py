@@ -136,13 +136,7 @@ class SACConfig:
         isinstance(self.learning_starts, int) and self.learning_starts >= 0,
         f"learning_starts={self.learning_starts!r}: must be an integer >= 0",
     )
-    need(
-        self.total_env_steps % self.env_steps_per_chunk == 0,
-        f"total_env_steps={self.total_env_steps} is not a multiple of num_envs*steps_per_chunk="
-        f"{self.env_steps_per_chunk}: set total_env_steps to "
-        f"{max(1, round(self.total_env_steps / self.env_steps_per_chunk)) * self.env_steps_per_chunk}"
-        " or change steps_per_chunk",
-    )
+    need(self.total_env_steps % self.env_steps_per_chunk == 0, self._budget_error())
     if isinstance(self.learning_starts, int):
       need(
           self.learning_starts < self.total_env_steps,
@@ -160,6 +154,17 @@ class SACConfig:
     )
     if errors:
       raise ValueError("invalid SACConfig:\n  " + "\n  ".join(errors))
+
+  def _budget_error(self) -> str:
+    """A budget is never rounded: name the nearest whole-chunk budgets and the other fix."""
+    unit = self.env_steps_per_chunk
+    lo, hi = self.total_env_steps // unit * unit, (self.total_env_steps // unit + 1) * unit
+    near = f"{lo} or {hi}" if lo > 0 else f"{hi}"
+    per_env = self.total_env_steps // self.num_envs
+    other = (f"a steps_per_chunk that divides {per_env}" if self.total_env_steps % self.num_envs == 0
+             else f"a budget that is a multiple of num_envs={self.num_envs}")
+    return (f"total_env_steps={self.total_env_steps} is not a multiple of num_envs*steps_per_chunk="
+            f"{unit}: set total_env_steps to {near} (--total-env-steps), or use {other}")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from hdt.agents.sac import SACConfig
 from hdt.agents.train import make_train
 from hdt.envs import make
 from hdt.envs.robot import check_recorded
-from hdt.envs.tasks import TASKS
+from hdt.envs.tasks import TASKS, get_task
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer.pipeline import (LOW_PARAMS, build_high_env, check_memory, hl_obs_layout, low_policy_fn,
                                    state_bytes)
@@ -200,6 +200,7 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   summary = {f"{k}_mean": float(np.mean(v)) for k, v in per_seed.items()}
   summary |= {f"{k}_std": float(np.std(v)) for k, v in per_seed.items()}
   which = {"params": "uniform random actions" if policy.uniform_actions else policy.meta.get("params", "final")}  # every number says which parameters made it
+  which["metric"] = get_task(task or policy.meta["task"]).headline  # what a table reports
   if policy.low_meta is not None:
     which["low_params"] = policy.low_meta.get("params", "final")
   return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary)
@@ -216,7 +217,7 @@ def zero_shot_matrix(highs: dict[str, str | Path], lows: dict[str, str | Path], 
     for hname, hrun in highs.items():
       ev = evaluate(compose(hrun, lrun, which=which, low_which=low_which), task, episodes=episodes,
                     backend=backend, **kw)
-      metric = "success" if "success_mean" in ev else "return"
+      metric = ev["metric"]
       cells[(lname, hname)] = (ev[f"{metric}_mean"], ev[f"{metric}_std"], metric)
       used[(lname, hname)] = (ev["params"], ev["low_params"])
   return dict(task=task, rows=list(lows), cols=list(highs), cells=cells, params=used)

@@ -157,7 +157,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   a_hidden = tuple(int(h) for h in am["hidden_sizes"])
   a_norm = normalizer.has(a_policy)  # A's observation normaliser travels with its policy
   if config is None:
-    config = configs.high_config(task, env.k, hidden_sizes=a_hidden, normalize_observations=a_norm)
+    config = configs.high_config(task, hidden_sizes=a_hidden, normalize_observations=a_norm)
   if config.normalize_observations != a_norm:
     raise ValueError(f"config.normalize_observations={config.normalize_observations} but the HL in {high} "
                      f"was trained {'with' if a_norm else 'without'} an observation normaliser; the "

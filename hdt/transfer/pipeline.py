@@ -461,7 +461,7 @@ def train_high(task: str, low: str | Path, config: SACConfig | None = None, seed
   ``low_params``: the LL's "best" evaluation's parameters (default, as the authors) or "final")."""
   check_env_overrides(task_overrides, task=task)
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params, k=k, **task_overrides)
-  config = config or configs.high_config(task, env.k)
+  config = config or configs.high_config(task)
   meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
                   low=low_rec, task_overrides=task_overrides, hl_obs=_hl_obs_meta(env))
   return _run(env, config, seeds, out, meta, quiet, f"high {task}", resume, save_every, overwrite=overwrite,
