@@ -125,7 +125,8 @@ def test_large_beta_keeps_finetuned_hl_close_to_a(pm_runs):
   assert kl_free > DRIFT, kl_free
 
   # The KL term was active (weight annealed from 10 towards 0) only in the tied run.
-  w = tied.history["regularizer_weight"][0]
+  assert "kl" in tied.history and "regularizer" not in tied.history  # logged under its own name
+  w = tied.history["kl_weight"][0]
   assert 9.0 < w[-1] < 10.0  # beta(t) = 10 * (1 - t / 10000) averaged over the learning steps
   assert np.all(free.history["regularizer_weight"][0] == 1.0)  # default schedule, no regulariser
   assert np.all(free.history["regularizer"][0] == 0.0)

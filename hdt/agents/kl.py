@@ -57,6 +57,7 @@ def make_kl_regularizer(
       kl = nets.gaussian_kl(ref_loc, ref_scale, loc, scale)
     return jnp.mean(kl)
 
+  regularizer.metric_name = "kl"  # logged as kl / kl_weight (hdt.agents.sac), not "regularizer"
   return regularizer
 
 

@@ -7,7 +7,10 @@ a clipped double-Q (twin-min) target, a tanh-squashed Gaussian policy, and a lea
 Two optional plug-ins, both no-ops by default:
 
 * ``actor_regularizer(policy_params, obs) -> scalar`` is added to the actor loss (times a scale the
-  training loop may anneal), e.g. ``beta * KL(pi || pi_ref)`` to a frozen reference policy.
+  training loop may anneal), e.g. ``beta * KL(pi || pi_ref)`` to a frozen reference policy. It is
+  logged as ``<metric_name>`` and its scale as ``<metric_name>_weight``, where ``metric_name`` is
+  the function's attribute of that name ("kl" for :func:`hdt.agents.kl.make_kl_regularizer`;
+  default "regularizer").
 * ``reward_fn(aux_state, batch) -> rewards`` recomputes the rewards of a sampled batch before the
   critic target is formed, e.g. a discriminator bonus whose state lives in ``aux_state``.
 """
@@ -159,7 +162,9 @@ class SACConfig:
     """A budget is never rounded: name the nearest whole-chunk budgets and the other fix."""
     unit = self.env_steps_per_chunk
     lo, hi = self.total_env_steps // unit * unit, (self.total_env_steps // unit + 1) * unit
-    near = f"{lo} or {hi}" if lo > 0 else f"{hi}"
+    nearest = max(1, round(self.total_env_steps / unit)) * unit
+    other = lo if nearest == hi else hi
+    near = f"{nearest} or {other}" if other > 0 else f"{nearest}"
     per_env = self.total_env_steps // self.num_envs
     other = (f"a steps_per_chunk that divides {per_env}" if self.total_env_steps % self.num_envs == 0
              else f"a budget that is a multiple of num_envs={self.num_envs}")
@@ -292,6 +297,7 @@ def make_update(
   Order within one update: critic step (current alpha), actor step (new critic), alpha step (the
   actor's log-probs), then the soft target update.
   """
+  reg_name = getattr(actor_regularizer, "metric_name", "regularizer")
   critic_loss, actor_loss, alpha_loss = make_losses(
       networks,
       gamma=config.gamma,
@@ -345,8 +351,8 @@ def make_update(
         "entropy": -jnp.mean(a_aux["log_prob"]),
         "q": c_aux["q"],
         "target_q": c_aux["target_q"],
-        "regularizer": a_aux["regularizer"],
-        "regularizer_weight": jnp.asarray(reg_scale, jnp.float32),
+        reg_name: a_aux["regularizer"],
+        f"{reg_name}_weight": jnp.asarray(reg_scale, jnp.float32),
         "batch_reward": jnp.mean(batch.reward),
     }
     return new_state, metrics
