@@ -64,8 +64,8 @@ def _budget(cfg, steps: int | None, pr: dict):
                          steps_per_chunk=configs.chunk_for(steps, cfg.num_envs, pr.get("evals", 5)))
 
 
-def high_cfg(task: str, steps: int | None, pr: dict, **kw):
-  return _budget(configs.config("high", pr["sac"], task=task, **kw), steps, pr)
+def high_cfg(task: str, steps: int | None, pr: dict):
+  return _budget(configs.config("high", pr["sac"], task=task), steps, pr)
 
 
 def full_cfg(agent: str, task: str, env_steps: int, pr: dict):
