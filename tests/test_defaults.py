@@ -62,6 +62,14 @@ def test_unknown_task_is_refused_everywhere():
     configs.high_config("reach")
 
 
+def test_budgets_are_not_env_options():
+  from hdt.envs import make
+  with pytest.raises(ValueError, match="ll_budget is the LL's training budget.*--total-env-steps"):
+    make("point", "reach", ll_budget=10)
+  with pytest.raises(ValueError, match="unknown override"):
+    make("point", "waypoint", hl_budget=10)  # class data of the task, not a field
+
+
 def test_defaults_are_data_on_agents_and_tasks():
   assert configs.low_config("ant").total_env_steps == AGENTS["ant"].ll_budget == 2_500_000
   assert configs.low_config("arm3").total_env_steps == AGENTS["arm3"].ll_budget == 1_200_000
