@@ -41,8 +41,10 @@ from hdt.agents.kl import MODES, linear_anneal, make_kl_regularizer
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.pipeline import (LOW_PARAMS, RunResult, _hl_obs_meta, _run, env_meta, high_env_with_low,
-                                   hl_obs_layout, sac_extras, train_high)
+from hdt.transfer.card import PolicyCard, check_level
+from hdt.transfer.pipeline import LOW_PARAMS, high_env_with_low, sac_extras, train_high
+from hdt.transfer.runner import RunResult
+from hdt.transfer.runner import run_stage as _run  # (tests spy on finetune's _run)
 
 train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 
@@ -55,10 +57,7 @@ def load_high_sac(high: str | Path, which: str = "final"):
   of a saved HL, checked to be a high level; ``which``: its "final" parameters (as the authors'
   finetune scripts) or its "best" evaluation's."""
   params, metas = ckpt.load_all(high, which)
-  level = metas[0].get("level")
-  if level != "high":
-    raise ckpt.CheckpointError(f"{high} holds a {level!r}-level policy; finetune_high needs an HL "
-                               f"(from `hdt train high`) as high=")
+  check_level(metas[0].get("level"), high, "finetune")
   return params, metas
 
 
@@ -142,29 +141,14 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
 
+  card_a = PolicyCard.from_json(am, high)
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params,
-                                   **(hl_obs_layout(am) | task_overrides))
-  fam = env.env.agent.family
-  if am.get("family") != fam:
-    raise ValueError(f"goal spaces do not match: the HL in {high} was trained for the {am.get('family')!r} "
-                     f"family, the LL in {low} belongs to {fam!r}; finetune an HL of the same family")
-  if am["obs_size"] != env.observation_size or am["action_size"] != env.action_size:
-    raise ckpt.CheckpointError(
-        f"the HL in {high} maps {am['obs_size']} observations to {am['action_size']} actions but the HL "
-        f"env of {task} over {low} has {env.observation_size} observations and {env.action_size} "
-        f"actions (was A's HL trained on another task or with other task options?)")
-
-  a_hidden = tuple(int(h) for h in am["hidden_sizes"])
+                                   **(card_a.obs_layout.task_options() | task_overrides))
   a_norm = normalizer.has(a_policy)  # A's observation normaliser travels with its policy
   if config is None:
-    config = configs.high_config(task, env.k, hidden_sizes=a_hidden, normalize_observations=a_norm)
-  if config.normalize_observations != a_norm:
-    raise ValueError(f"config.normalize_observations={config.normalize_observations} but the HL in {high} "
-                     f"was trained {'with' if a_norm else 'without'} an observation normaliser; the "
-                     f"finetuned policy must have A's layout")
-  if tuple(config.hidden_sizes) != a_hidden:
-    raise ValueError(f"config.hidden_sizes={config.hidden_sizes} but the HL in {high} has hidden sizes "
-                     f"{a_hidden}; the finetuned policy must have A's architecture")
+    config = configs.high_config(task, env.k, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm)
+  card_b = lambda config: PolicyCard.from_env(env, "high", config, low=low_rec, task_overrides=task_overrides)
+  card_a.compatible_with(card_b(config).replace(source=str(low)), "finetune")
   if lr is not None:
     config = configs.replace(config, actor_lr=lr, critic_lr=lr, alpha_lr=lr)
   if learning_starts is not None:
@@ -190,9 +174,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   pick = np.arange(n) % n_a
   ts = ts.replace(agent=start_from_a(ts.agent, a_params, pick, config, high, init))
 
-  meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
-                  low=low_rec, task_overrides=task_overrides,
-                  hl_obs=_hl_obs_meta(env), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
+  meta = dict(card_b(config).to_json(), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
                                       params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
                                       reference_seed=reference_seed),
