@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from hdt.agents import acting
 from hdt.agents import networks as nets
 from hdt.agents import normalizer
 from hdt.agents import sharding as sharding_lib
@@ -200,6 +201,7 @@ def make_train(
   schedule = actor_regularizer_schedule or (lambda env_steps: jnp.ones((), jnp.float32))
   n_envs, batch_size = config.num_envs, config.batch_size
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+  deterministic_policy = lambda params, obs: nets.deterministic_action(networks.policy_apply(params, obs)[0])
   spec = replay_lib.make_transition_spec(obs_size, act_size)
   if transition_extras is not None:
     one = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
@@ -324,61 +326,9 @@ def make_train(
 
   # ---------------------------------------------------------------------------------------------
   def evaluate(policy_params, key: jax.Array) -> dict:
-    """Deterministic (tanh(mean)) rollouts of ``num_eval_episodes`` parallel episodes.
-
-    Each episode is counted up to and including its first ``done`` (within ``env.horizon`` steps).
-    Returns ``return`` (mean over episodes), ``return_std``, ``length``, and for each entry ``k``
-    of ``state.metrics``: ``k`` (mean over the episode's steps), ``k_max`` and ``k_final`` (value
-    at the episode's last step), each averaged over episodes.
-    """
-    n = config.num_eval_episodes
-    s0 = v_reset(jax.random.split(key, n))
-    m0 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), s0.metrics)
-    zeros_like = lambda t: jax.tree_util.tree_map(jnp.zeros_like, t)
-    carry0 = dict(
-        state=s0,
-        alive=jnp.ones((n,), jnp.float32),
-        ret=jnp.zeros((n,), jnp.float32),
-        length=jnp.zeros((n,), jnp.float32),
-        msum=zeros_like(m0),
-        mmax=jax.tree_util.tree_map(lambda x: jnp.full_like(x, -jnp.inf), m0),
-        mlast=zeros_like(m0),
-    )
-
-    def bcast(alive, x):
-      return alive.reshape(alive.shape + (1,) * (x.ndim - 1))
-
-    def step(c, _):
-      loc, _ = networks.policy_apply(policy_params, c["state"].obs)
-      s = v_step(c["state"], nets.deterministic_action(loc))
-      alive = c["alive"]
-      m = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), s.metrics)
-      on = lambda x: bcast(alive, x) > 0
-      return dict(
-          state=s,
-          alive=alive * (1.0 - jnp.asarray(s.done, jnp.float32)),
-          ret=c["ret"] + alive * jnp.asarray(s.reward, jnp.float32),
-          length=c["length"] + alive,
-          msum=jax.tree_util.tree_map(lambda a, x: a + bcast(alive, x) * x, c["msum"], m),
-          mmax=jax.tree_util.tree_map(
-              lambda a, x: jnp.where(on(x), jnp.maximum(a, x), a), c["mmax"], m
-          ),
-          mlast=jax.tree_util.tree_map(lambda a, x: jnp.where(on(x), x, a), c["mlast"], m),
-      ), None
-
-    c, _ = jax.lax.scan(step, carry0, None, length=env.horizon)
-    length = jnp.maximum(c["length"], 1.0)
-    out = {
-        "return": jnp.mean(c["ret"]),
-        "return_std": jnp.std(c["ret"]),
-        "length": jnp.mean(c["length"]),
-    }
-    for k in c["msum"]:
-      x = c["msum"][k]
-      out[k] = jnp.mean(x / length.reshape(length.shape + (1,) * (x.ndim - 1)), axis=0)
-      out[k + "_max"] = jnp.mean(c["mmax"][k], axis=0)
-      out[k + "_final"] = jnp.mean(c["mlast"][k], axis=0)
-    return out
+    """Deterministic (tanh(mean)) rollouts of ``num_eval_episodes`` parallel episodes
+    (:func:`hdt.agents.acting.evaluate`)."""
+    return acting.evaluate(env, deterministic_policy, policy_params, key, config.num_eval_episodes)
 
   # ---------------------------------------------------------------------------------------------
   def train(key: jax.Array) -> tuple[TrainState, dict]:
