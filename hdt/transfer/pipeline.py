@@ -17,10 +17,14 @@ from hdt.transfer import configs
 from hdt.transfer.align import align_low
 from hdt.transfer.card import ObsLayout, PolicyCard, load_low, low_policy_fn  # noqa: F401 (part of this API)
 from hdt.transfer.hierarchy import HighLevelEnv
-# run_stage is this module's _run (the name tests and callers use); the rest is part of this API
 from hdt.transfer.runner import RESUME_DOC, RunResult, check_memory, counted_mujoco_warnings  # noqa: F401
-from hdt.transfer.runner import print_progress, state_bytes, write_metrics_csv  # noqa: F401
-from hdt.transfer.runner import run_stage as _run
+from hdt.transfer.runner import print_progress, run_stage, state_bytes, write_metrics_csv  # noqa: F401
+
+
+def _run(*args, **kw) -> RunResult:
+  """:func:`run_stage` reporting progress with this module's ``print_progress`` (looked up per call,
+  so it can be swapped)."""
+  return run_stage(*args, progress_printer=print_progress, **kw)
 
 
 def env_meta(env, level: str, config: SACConfig, **extra) -> dict:

@@ -58,12 +58,13 @@ def print_progress(total: int, quiet: bool = False, label: str = "") -> Callable
 
 def run_stage(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str, resume=False,
          save_every: int | None = None, save_extra: Callable[[Any], dict] | None = None,
-         overwrite: bool = False, **plugins) -> RunResult:
+         overwrite: bool = False, progress_printer: Callable | None = None, **plugins) -> RunResult:
   """Trains, saving the resumable state to ``out/state`` every ``save_every`` env steps and at the
   end, then writes the run directory. Every argument is checked before anything is written, and
   ``out`` is claimed (hdt.transfer.rundir: owned by hdt, locked, replaced whole with ``overwrite``)
   before anything is compiled. save_extra(final TrainState) -> {name: pytree with a seed axis}
-  saved next to "policy" and "q" in every seed's checkpoint (e.g. the discriminator of an aligned LL)."""
+  saved next to "policy" and "q" in every seed's checkpoint (e.g. the discriminator of an aligned LL).
+  progress_printer(total, quiet, label) -> progress_fn(step, metrics); default :func:`print_progress`."""
   check_train_memory(env, config, seeds)
   seeds = sac_train.seed_list(seeds)
   run_dir, source = _outputs(out, resume, overwrite)
@@ -89,7 +90,7 @@ def run_stage(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label
           ckpt.save_state(run_dir, ts, {k: np.stack(v, axis=1) for k, v in hist.items()},
                           dict(info, env_steps=step), best)
 
-    progress = print_progress(config.total_env_steps, quiet, label)
+    progress = (progress_printer or print_progress)(config.total_env_steps, quiet, label)
     try:
       with counted_mujoco_warnings(quiet) as warned:
         res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
