@@ -39,12 +39,12 @@ def test_discriminator_and_kl_train_together_and_both_terms_are_logged():
   h = res.history
   learned = h["update_steps"][:, -1] > 0
   assert learned.all()
-  for term in ("disc/loss", "disc/acc", "regularizer", "regularizer_weight", "critic_loss", "actor_loss"):
+  for term in ("disc/loss", "disc/acc", "kl", "kl_weight", "critic_loss", "actor_loss"):
     assert term in h and np.all(np.isfinite(h[term])), term
   chunks = h["env_steps"][0] > CFG.learning_starts
-  assert np.all(h["regularizer"][:, chunks] > 0)  # the KL to another network is never 0
+  assert np.all(h["kl"][:, chunks] > 0)  # the KL to another network is never 0
   assert np.all(h["disc/loss"].max(axis=1) > 0)  # it trains (until DiscConfig.stop of the run)
-  w = h["regularizer_weight"][0]
+  w = h["kl_weight"][0]
   assert w[chunks][0] > w[-1] > 0  # annealed from 2 towards 0
   # both plug-ins' states are in TrainState.aux, per seed
   aux = res.state.aux
@@ -79,7 +79,7 @@ def test_the_kl_reference_is_per_seed_state():
   own = jax.tree.map(lambda r, p: r.at[1].set(p[1]), ts.aux[KL_REFERENCE], ts.agent.policy_params)
   ts = ts.replace(aux=dict(ts.aux, **{KL_REFERENCE: own}))
   ts, m = sac_train.vmapped(trainer).run_chunk(ts)  # learning starts within the first chunk
-  reg = np.asarray(m["regularizer"])
+  reg = np.asarray(m["kl"])
   assert reg[0] > 1e-3 and reg[1] < 0.1 * reg[0], reg  # seed 1 starts at its reference
 
 
