@@ -2,9 +2,7 @@
 refused, the CLI and experiments/ build the same configs, tasks own their metrics, and
 ``hdt reproduce --out`` publishes its table and figures. No training: every test takes seconds."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -16,14 +14,8 @@ from hdt.envs.agents import AGENTS
 from hdt.envs.tasks import TASKS, get_task
 from hdt.transfer import configs
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
-def load(name):
-  spec = importlib.util.spec_from_file_location(f"exp_{name}", ROOT / "experiments" / f"{name}.py")
-  mod = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(mod)
-  return mod
 
 
 # -- budgets --------------------------------------------------------------------------------------
@@ -94,7 +86,7 @@ def _cli_config(level, preset, agent=None, task=None):
 
 @pytest.mark.parametrize("name", ["table1", "table2", "table3", "fig5", "fig6"])
 def test_presets_agree_between_cli_and_experiments(name):
-  mod = load(name)
+  mod = cli.load_experiment(name)
   from experiments import common as C
   for preset in mod.PRESETS:
     pr = C.experiment_preset(mod.PRESETS, preset)
@@ -109,7 +101,7 @@ def test_presets_agree_between_cli_and_experiments(name):
 
 
 def test_ant_ll_budget_is_the_same_in_reproduce_and_train():
-  fig6 = load("fig6")
+  fig6 = cli.load_experiment("fig6")
   from experiments import common as C
   pr = C.experiment_preset(fig6.PRESETS, "cpu")
   assert C.low_cfg("ant", pr).total_env_steps == _cli_config("low", "cpu", agent="ant").total_env_steps == 100_000
@@ -156,7 +148,7 @@ def test_reproduce_out_writes_table_and_figures(tmp_path, monkeypatch, capsys):
   from experiments import common as C
   from hdt.plots import learning_curves
   monkeypatch.setattr(C, "RESULTS", tmp_path / "results")
-  fig5 = load("fig5")
+  fig5 = cli.load_experiment("fig5")
 
   def run(preset, out, seeds=None, quiet=False):
     x = np.array([[0.0, 64.0]])
