@@ -193,7 +193,7 @@ def make_gym_env(env, seed: int | None = None):
 def run_hdt(low_dir, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
   t0 = time.perf_counter()
   env = hl_env(low_dir)
-  cfg = configs.high_config(HL_TASK, env.k, total_env_steps=max_steps,
+  cfg = configs.high_config(HL_TASK, total_env_steps=max_steps,
                             steps_per_chunk=eval_every // overrides["num_envs"], **overrides)
   make_eval = lambda trainer: make_hl_evaluator(env, ttq.hdt_policy_fn(trainer.networks), episodes)
   return ttq.hdt_loop("hdt HL", env, cfg, seed, make_eval, thresholds, max_seconds, log, t0,

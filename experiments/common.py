@@ -7,10 +7,10 @@ Every experiment module has the same interface, used by ``hdt reproduce NAME --p
     markdown(result) -> str
     main(argv=None) -> int
 
-Budgets in a preset: ``low`` = LL env steps per agent kind ("point", "manip", "legged"; None = the
-paper's budget from :mod:`hdt.transfer.configs`), ``high`` / ``ft`` = HL steps (HL decisions; None =
-the paper's LL-equivalent budget / k). Every run uses 8 parallel envs and 8 gradient updates per
-training step: the paper's update-to-data ratio of 1, with 8x fewer sequential steps.
+An experiment's preset names what is its own (seeds, evaluation episodes, rows, ``ft`` = HL
+decisions of each finetuning method, ``evals`` = evaluations over such a run); every SAC config and
+budget comes from the one table, :func:`hdt.transfer.configs.config` at the configs preset ``sac``
+(default: the experiment preset's name), exactly as ``hdt train --preset`` builds it.
 
 Run directories are reused when their config, seeds and key metadata match (so a killed long run
 can be restarted and only redoes what is missing); delete a run directory to retrain it.
@@ -23,6 +23,7 @@ import csv
 import dataclasses
 import json
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -35,7 +36,6 @@ import numpy as np
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/hdt/jax"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 
-from hdt.envs.agents import AGENTS
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import rundir
 from hdt.transfer import configs
@@ -44,34 +44,32 @@ from hdt.transfer.finetune import finetune_high
 from hdt.transfer.pipeline import RunResult, train_full, train_high, train_low
 
 RESULTS = Path(__file__).resolve().parent / "results"
-PARALLEL = dict(num_envs=8, updates_per_step=8)
 
 
-# -- budgets --------------------------------------------------------------------------------------
-def kind(agent: str) -> str:
-  """Budget key of an agent: "point" (nav PM), "legged" or "manip"."""
-  return "point" if agent == "point" else "legged" if AGENTS[agent].legged else "manip"
-
-
-def _chunked(steps: int, evals: int) -> dict:
-  """A chunk per evaluation: ``evals`` evaluations over the run (plus the one at the start)."""
-  return dict(total_env_steps=steps, steps_per_chunk=max(1, steps // PARALLEL["num_envs"] // evals))
+# -- budgets: the one table (hdt.transfer.configs) ------------------------------------------------
+def experiment_preset(presets: dict, name: str) -> dict:
+  """Experiment preset ``name`` with ``sac``, the configs preset its SAC configs come from."""
+  return {"sac": name} | presets[name]
 
 
 def low_cfg(agent: str, pr: dict):
-  steps = pr["low"].get(kind(agent)) or configs.low_config(agent).total_env_steps
-  return configs.low_config(agent, **PARALLEL, **_chunked(steps, 10), num_eval_episodes=16)
+  return configs.config("low", pr["sac"], agent=agent)
 
 
-def high_cfg(task: str, k: int, steps: int | None, pr: dict, **kw):
-  steps = steps or configs.high_config(task, k).total_env_steps
-  return configs.high_config(task, k, **PARALLEL, **_chunked(steps, pr.get("evals", 5)),
-                             num_eval_episodes=pr.get("train_episodes", 8), **kw)
+def _budget(cfg, steps: int | None, pr: dict):
+  """``cfg`` with ``steps`` (if given) split into ``pr["evals"]`` evaluation chunks."""
+  if steps is None:
+    return cfg
+  return configs.replace(cfg, total_env_steps=steps,
+                         steps_per_chunk=configs.chunk_for(steps, cfg.num_envs, pr.get("evals", 5)))
+
+
+def high_cfg(task: str, steps: int | None, pr: dict):
+  return _budget(configs.config("high", pr["sac"], task=task), steps, pr)
 
 
 def full_cfg(agent: str, task: str, env_steps: int, pr: dict):
-  return configs.full_config(agent, task, **PARALLEL, **_chunked(env_steps, pr.get("evals", 5)),
-                             num_eval_episodes=pr.get("train_episodes", 8))
+  return _budget(configs.config("full", pr["sac"], agent=agent, task=task), env_steps, pr)
 
 
 # -- runs, reused when they match -----------------------------------------------------------------
@@ -125,16 +123,17 @@ def low(agent: str, pr: dict, out: Path, seeds: int, quiet: bool, name: str | No
 
 def high(task: str, low_run: RunResult, pr: dict, out: Path, seeds: int, quiet: bool,
          steps: int | None = None, name: str | None = None, **task_kw) -> RunResult:
-  budget = pr["high"].get(task, pr["high"]["default"]) if isinstance(pr["high"], dict) else pr["high"]
-  cfg = high_cfg(task, low_run.meta["k"], steps or budget, pr)
+  """A's HL on ``task`` over ``low_run``: the preset's HL budget, or ``steps`` HL decisions."""
+  task_kw = configs.task_options(pr["sac"], task) | task_kw  # paper: the authors' task setup
+  cfg = high_cfg(task, steps, pr)
   name = name or f"{low_run.meta['agent']}_high_{task}"
   return reuse_or_train(out / name, cfg, seeds, expect={"task_overrides": task_kw}, train=lambda: train_high(
       task, low_run.run_dir, cfg, seeds=seeds, out=out / name, quiet=quiet, **task_kw))
 
 
 def score(ev: dict) -> dict:
-  """The table entry of an evaluation: success where the task has it, else return."""
-  metric = "success" if "success_mean" in ev else "return"
+  """The table entry of an evaluation: the task's headline metric (``Task.headline``)."""
+  metric = ev["metric"]
   return dict(metric=metric, mean=ev[f"{metric}_mean"], std=ev[f"{metric}_std"],
               per_seed=np.asarray(ev["per_seed"][metric]).tolist(), episodes=ev["episodes"])
 
@@ -183,6 +182,26 @@ def write_result(name: str, preset: str, result: dict) -> Path:
   return path
 
 
+def publish(name: str, preset: str, out: Path, text: str) -> list[Path]:
+  """Writes the table of ``name`` at ``preset`` (``.md`` from ``text``, ``.json``) and its figures
+  (``.png``, per-seed curve CSVs) into ``out``, next to the runs; the JSON and figures are also kept
+  in experiments/results/ (the record RESULTS.md links to). Returns the paths written to ``out``."""
+  out = Path(out)
+  stem = f"{name}_{preset}"
+  md = out / f"{stem}.md"
+  write_text_atomic(md, text.rstrip() + "\n")
+  written = [md]
+  for src in [*sorted(RESULTS.glob(f"{stem}.*")), RESULTS / stem]:
+    if src.is_dir():
+      shutil.copytree(src, out / src.name, dirs_exist_ok=True)
+    elif src.is_file():
+      shutil.copy2(src, out / src.name)
+    else:
+      continue
+    written.append(out / src.name)
+  return written
+
+
 def command(name: str, preset: str) -> str:
   return f"hdt reproduce {name} --preset {preset}  (or: PYTHONPATH=. python experiments/{name}.py --preset {preset})"
 
@@ -217,19 +236,21 @@ def make_main(name: str, presets: dict, run: Callable, markdown: Callable, doc: 
     if extra:
       extra(p)
     a = vars(p.parse_args(argv))
-    print(markdown(run(**a)))
+    text = markdown(run(**a))
+    print(text)
+    print("written: " + " ".join(map(str, publish(name, a["preset"], a["out"], text))))
     return 0
 
   return main
 
 
 # -- finetuning studies (fig5, fig6, table3) ------------------------------------------------------
-# PM A -> ant B studies (fig6, table3). The ant is expensive: at the cpu preset its LL gets 40k of the
-# paper's 2.5M env steps, so these numbers say little about the paper's.
+# PM A -> ant B studies (fig6, table3). The ant is expensive: at the cpu preset its LL gets 100k of the
+# paper's 2.5M env steps (configs.CPU_LOW_STEPS), so these numbers say little about the paper's.
 NAV_PM_TO_ANT_PRESETS = {
-    "smoke": dict(low={"point": 1000, "legged": 1000}, high=100, ft=100, seeds=1, episodes=2, evals=2),
-    "cpu": dict(low={"point": 20_000, "legged": 40_000}, high=4000, ft=1500, seeds=2, episodes=20, evals=5),
-    "paper": dict(low={}, high=None, ft=None, seeds=5, episodes=100, evals=20, train_episodes=20),
+    "smoke": dict(ft=96, seeds=1, episodes=2, evals=2),
+    "cpu": dict(ft=1480, seeds=2, episodes=20, evals=5),
+    "paper": dict(ft=None, seeds=5, episodes=100, evals=20),
 }
 METHODS = {"finetune_kl": "finetune KL", "finetune": "finetune", "scratch": "HL scratch", "full": "Full"}
 
@@ -256,15 +277,16 @@ def finetune_study(st: FinetuneStudy, preset: str, pr: dict, out: Path, seeds: i
   of B's env samples (HL steps x k for hierarchical methods, env steps for Full), writes one CSV per
   method and seed plus a PNG of mean ± std curves, and returns the result dict (final evaluations
   with ``episodes`` deterministic episodes per seed)."""
-  task, tkw, minutes = st.task, dict(st.task_kw), {}
+  task, minutes = st.task, {}
+  tkw = configs.task_options(pr["sac"], task) | dict(st.task_kw)
   a_low = timed(minutes, "A low", lambda: low(st.a, pr, out, seeds, quiet))
   a_high = timed(minutes, "A high", lambda: high(task, a_low, pr, out, seeds, quiet, **tkw))
   b_low = timed(minutes, "B low", lambda: low(st.b, pr, out, seeds, quiet, **dict(st.b_low)))
   k = b_low.meta["k"]
   zero = eval_hl(a_high, b_low, task, pr["episodes"], **tkw)
   hp = configs.finetune_params(task)
-  ft_cfg = configs.replace(high_cfg(task, k, pr["ft"], pr), actor_lr=hp["lr"], critic_lr=hp["lr"],
-                           alpha_lr=hp["lr"])
+  ft_cfg = configs.replace(high_cfg(task, pr["ft"] or configs.hl_budget(task), pr), actor_lr=hp["lr"],
+                           critic_lr=hp["lr"], alpha_lr=hp["lr"])
 
   def finetuned(kl):
     name = f"{st.b}_ft{'_kl' if kl else ''}_{task}"
@@ -322,7 +344,7 @@ def study_interface(st: FinetuneStudy, presets: dict, paper: dict, doc: str | No
 
   def run(preset: str = "cpu", out: Path = Path("runs") / st.name, seeds: int | None = None,
           quiet: bool = False) -> dict:
-    pr = presets[preset]
+    pr = experiment_preset(presets, preset)
     result = finetune_study(st, preset, pr, Path(out), seeds or pr["seeds"], quiet)
     write_result(st.name, preset, result)
     return result

@@ -25,11 +25,11 @@ STUDY = C.FinetuneStudy("fig5", a="arm_point", b="arm3", task="push1",
 PAPER = {"zero_shot": ".17", "finetune_kl": "fastest (≥ 2× plain finetune)", "finetune": "curve",
          "scratch": "slower", "full": "slower (succeeds eventually)"}
 
-PRESETS = {  # LL env steps by agent kind; HL steps of A's HL (high) and of each method (ft)
-    "test": dict(low={"manip": 200}, high=64, ft=64, seeds=1, episodes=2, evals=1),  # tests only
-    "smoke": dict(low={"manip": 1000}, high=200, ft=200, seeds=1, episodes=4, evals=2),
-    "cpu": dict(low={"manip": 60_000}, high=6000, ft=3000, seeds=2, episodes=50, evals=5),  # = table1 runs
-    "paper": dict(low={}, high=None, ft=None, seeds=5, episodes=100, evals=20, train_episodes=20),
+PRESETS = {  # HL decisions of each method (ft) and evaluations over it; other budgets: hdt.transfer.configs
+    "test": dict(sac="smoke", ft=64, seeds=1, episodes=2, evals=1),  # tests only
+    "smoke": dict(ft=200, seeds=1, episodes=4, evals=2),
+    "cpu": dict(ft=3000, seeds=2, episodes=50, evals=5),  # A's and B's runs = table1's
+    "paper": dict(ft=None, seeds=5, episodes=100, evals=20),
 }
 
 

@@ -23,18 +23,16 @@ TASKS = {"point": [("waypoint", {}, [("waypoint", {})]),
                    ("maze", {"goal": "sample"}, [("maze_end", {"goal": "end"}), ("maze_sample", {"goal": "sample"})])]}
 MANIP_TASKS = [("push1", {}, [("push1", {})])]  # (task, training options, [(row name, eval options)])
 
-PRESETS = {  # LL env steps by agent kind, HL decisions (per task, or one number), seeds, eval episodes
-    "smoke": dict(low={"point": 2000, "manip": 1000}, high=500, seeds=1, episodes=4),
-    # BlockPush HLs start succeeding after about 20k decisions here (RESULTS.md, learning check).
-    "cpu": dict(low={"point": 20_000, "manip": 60_000}, high={"default": 6000, "push1": 30_000}, seeds=2,
-                episodes=50),
-    "paper": dict(low={}, high=None, seeds=5, episodes=100),
+PRESETS = {  # seeds and eval episodes; budgets: hdt.transfer.configs at the same preset (hdt train --preset)
+    "smoke": dict(seeds=1, episodes=4),
+    "cpu": dict(seeds=2, episodes=50),
+    "paper": dict(seeds=5, episodes=100),
 }
 
 
 def run(preset: str = "cpu", out: Path = Path("runs/table1"), seeds: int | None = None,
         quiet: bool = False, agents: list[str] | None = None) -> dict:
-  pr, out = PRESETS[preset], Path(out)
+  pr, out = C.experiment_preset(PRESETS, preset), Path(out)
   seeds = seeds or pr["seeds"]
   results = {"preset": preset}
   for agent in agents or AGENTS:

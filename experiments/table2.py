@@ -24,17 +24,16 @@ ROWS = {  # name: (A, B, task, paper zero-shot plain -> aligned)
     "3link_4link_insert": ("arm3", "arm4", "insert", (".80", ".93")),
 }
 
-PRESETS = {  # LL env steps by agent kind, HL steps, rows
-    "smoke": dict(low={"manip": 1000}, high=200, seeds=1, episodes=4, evals=2, rows=["pm_3link_push1"]),
-    "cpu": dict(low={"manip": 60_000}, high=6000, seeds=2, episodes=50,  # = table1's: its runs are reused
-                rows=["pm_3link_push1", "2link_3link_push1"]),
-    "paper": dict(low={}, high=None, seeds=5, episodes=100, rows=list(ROWS)),
+PRESETS = {  # seeds, eval episodes, rows; budgets: hdt.transfer.configs at the same preset
+    "smoke": dict(seeds=1, episodes=4, rows=["pm_3link_push1"]),
+    "cpu": dict(seeds=2, episodes=50, rows=["pm_3link_push1", "2link_3link_push1"]),  # table1's runs reused
+    "paper": dict(seeds=5, episodes=100, rows=list(ROWS)),
 }
 
 
 def run(preset: str = "cpu", out: Path = Path("runs/table2"), seeds: int | None = None,
         quiet: bool = False) -> dict:
-  pr, out = PRESETS[preset], Path(out)
+  pr, out = C.experiment_preset(PRESETS, preset), Path(out)
   seeds = seeds or pr["seeds"]
   lows, highs, minutes, rows = {}, {}, {}, {}
 

@@ -30,8 +30,9 @@ from pathlib import Path
 
 from hdt.agents.discriminator import DiscConfig
 from hdt.agents.sac import SACConfig
+from hdt.transfer import configs
 
-PRESETS = ("smoke", "cpu", "paper")
+PRESETS = tuple(configs.PRESETS)
 REPO = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6")
 AGENT_HELP = ("point, ant, ant3, ant2, quadruped, arm_point, arm2, arm3, arm4, or the path of a robot "
@@ -121,8 +122,7 @@ def _common(p, out_help="run directory (default: runs/<what>)"):
   p.add_argument("--preset", choices=PRESETS, default="cpu",
                  help="budget: smoke (seconds), cpu (this machine, minutes), paper (the authors' setup and "
                       "budgets). Budgets (--total-env-steps) count LL env steps for LLs and Full, HL "
-                      "decisions for HLs (the paper's units); paper: 200k/1.2M/2.5M LL steps (point/arms/"
-                      "legged), 200k Waypoint, 400k Maze/Steps, 500k BlockPush/Insert HL decisions "
+                      f"decisions for HLs (the paper's units); paper: {configs.describe_paper_budgets()} "
                       "(default: %(default)s)")
   p.add_argument("--out", type=_out_arg, default=None, help=out_help)
   p.add_argument("--quiet", action="store_true", help="no progress output (CI)")
@@ -228,7 +228,8 @@ def build_parser() -> argparse.ArgumentParser:
   rp.add_argument("--results-md", type=Path, default=REPO / "RESULTS.md",
                   help="Markdown file whose section for NAME/preset is replaced (not for smoke)")
   rp.add_argument("--no-results-md", action="store_true", help="do not touch the results Markdown")
-  _common(rp, "directory of the experiment's runs (default: runs/NAME-PRESET)")
+  _common(rp, "directory of the experiment's runs, its table (NAME_PRESET.md, .json) and figures "
+              "(default: runs/NAME-PRESET)")
 
   rep = sub.add_parser("report", help="Markdown summary, learning curves and a trajectory of a run",
                        formatter_class=fmt)
@@ -284,14 +285,8 @@ def _run_kw(args) -> dict:
   return {"resume": True} if args.resume else {"overwrite": True} if args.overwrite else {}
 
 
-def _sac_config(args, level: str, agent=None, task=None, k=None, **extra) -> SACConfig:
-  from hdt.transfer import configs
-  over = configs.preset_overrides(args.preset, level, agent) | extra | _overrides(args, SACConfig, "")
-  if level == "high":
-    return configs.high_config(task, k, **over)
-  if level == "full":
-    return configs.full_config(agent, task, **over)
-  return configs.low_config(agent, **over)
+def _sac_config(args, level: str, agent=None, task=None, **extra) -> SACConfig:
+  return configs.config(level, args.preset, agent=agent, task=task, **(extra | _overrides(args, SACConfig, "")))
 
 
 def _check_agent_task(agent=None, task=None):
@@ -326,7 +321,6 @@ def _finish(res, args):
 
 def cmd_train(args) -> int:
   from hdt.transfer import checkpoint as ckpt
-  from hdt.transfer import configs
   from hdt.transfer import pipeline
   overrides = _key_values(args.set, "--set")
   pipeline.check_env_overrides(overrides, getattr(args, "agent", None), getattr(args, "task", None) or "reach")
@@ -343,7 +337,7 @@ def cmd_train(args) -> int:
     if args.k is not None and args.k <= 0:
       raise CLIError(f"--k {args.k}: give a positive number of LL steps per HL action")
     overrides = configs.task_options(args.preset, args.task) | overrides
-    cfg = _sac_config(args, "high", task=args.task, k=args.k or low_meta["k"])
+    cfg = _sac_config(args, "high", task=args.task)
     out = _out_dir(args, f"high-{args.task}-{_label(low_meta['agent'])}")
     res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
                               low_seed=args.low_seed, k=args.k, quiet=args.quiet, low_params=args.low_params,
@@ -375,14 +369,13 @@ def cmd_align(args) -> int:
 
 def cmd_finetune(args) -> int:
   from hdt.transfer import checkpoint as ckpt
-  from hdt.transfer import configs
   from hdt.transfer.finetune import finetune_high
   _check_agent_task(task=args.task)
   from hdt.transfer.pipeline import check_env_overrides, load_low
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
   hm = ckpt.require(ckpt.load_meta(args.high), {"agent": str, "hidden_sizes": list}, args.high)
   lm = load_low(args.low, args.low_seed)[1]
-  cfg = _sac_config(args, "high", task=args.task, k=lm["k"], hidden_sizes=tuple(hm["hidden_sizes"]))
+  cfg = _sac_config(args, "high", task=args.task, hidden_sizes=tuple(hm["hidden_sizes"]))
   out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{args.kl:g}")
   res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
@@ -512,32 +505,34 @@ def cmd_sweep(args) -> int:
   pipeline.check_env_overrides(overrides, args.agent, args.task or "reach")
   root = _out_dir(args, f"sweep-{args.level}", kind="sweep")
   seeds = _seeds(args)
-  k = pipeline.load_low(args.low)[1]["k"] if args.level == "high" else None
+  if args.level == "high":
+    pipeline.load_low(args.low)  # checked to be a usable LL before anything is written
   with rundir.claim(root, "sweep", overwrite=args.overwrite):
-    rows = _sweep(args, grid, root, seeds, k, overrides)
+    rows = _sweep(args, grid, root, seeds, overrides)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
     (root / "sweep.md").write_text(table + "\n")
   print(table)
   return 0
 
 
-def _sweep(args, grid: dict, root: Path, seeds: int, k, overrides: dict) -> list:
+def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
   import numpy as np
+  from hdt.envs.tasks import get_task
   from hdt.report import fmt
   from hdt.transfer import pipeline
   names, runs = [], []
   for values in itertools.product(*grid.values()):
     point = dict(zip(grid, values))
     names.append(",".join(f"{k_}={v}" for k_, v in point.items()))
-    runs.append((_sac_config(args, args.level, args.agent, args.task, k=k, **point),
+    runs.append((_sac_config(args, args.level, args.agent, args.task, **point),
                  root / names[-1].replace("/", "_")))
   stage = {"low": dict(agent=args.agent), "high": dict(task=args.task, low=args.low),
            "full": dict(agent=args.agent, task=args.task)}[args.level]
   # points differing only in learning rates, tau, gamma or reward scale train as one vmapped program
   results = pipeline.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)
+  metric = get_task(args.task if args.level != "low" else "reach").headline_column
   rows = []
   for name, (_, out), res in zip(names, runs, results):
-    metric = next((m for m in ("eval/success_max", "eval/return") if m in res.history), None)
     final = res.history[metric][:, -1]
     rows.append([name, metric[5:], fmt(np.mean(final), np.std(final)), str(out)])
   return rows
@@ -579,7 +574,10 @@ def cmd_reproduce(args) -> int:
   result = mod.run(args.preset, out, seeds=args.seeds, quiet=args.quiet)
   text = mod.markdown(result)
   print(text)
-  print(f"\n{args.name} ({args.preset}) took {(time.time() - t0) / 60:.1f} min; runs in {out}")
+  from experiments.common import publish  # importable: load_experiment put the checkout on sys.path
+  written = publish(args.name, args.preset, out, text)
+  print(f"\n{args.name} ({args.preset}) took {(time.time() - t0) / 60:.1f} min; runs and results in {out}: "
+        + ", ".join(p.name for p in written))
   if args.preset != "smoke" and not args.no_results_md:
     update_results_md(args.results_md, f"{args.name}:{args.preset}", text)
     print(f"updated {args.results_md}")
@@ -632,7 +630,7 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   import json
 
   from hdt.report import fmt, markdown_table, run_report
-  from hdt.transfer import configs, zoo
+  from hdt.transfer import zoo
   from hdt.transfer.evaluate import compose, evaluate, random_actions
   from hdt.transfer.pipeline import train_high, train_low
   small = args.preset == "smoke"
@@ -655,7 +653,7 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
       continue  # that LL is not in this checkout's zoo
     policy = compose(high.run_dir if hl_run == "here" else hl_run, ll_run, box="scale")
     ev = evaluate(random_actions(policy) if random else policy, task, episodes=episodes)
-    metric = "success" if task != "waypoint" else "return"
+    metric = ev["metric"]  # the task's headline (Task.headline)
     value = fmt(ev[f"{metric}_mean"], ev[f"{metric}_std"])
     rows.append([task, metric, label, ll_run, value, paper])
     table.append(dict(task=task, metric=metric, high=label, low=ll_run, mean=ev[f"{metric}_mean"],

@@ -1,33 +1,27 @@
 """The experiment-module interface (``hdt reproduce NAME``): fig5 end to end at its tiny test preset."""
 
 import csv
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from hdt import cli
 
 
-def load(name):
-  """As the CLI does: experiments/NAME.py by path."""
-  spec = importlib.util.spec_from_file_location(f"exp_{name}", ROOT / "experiments" / f"{name}.py")
-  mod = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(mod)
-  return mod
+
 
 
 @pytest.mark.parametrize("name", ["table1", "table2", "table3", "fig5", "fig6"])
 def test_interface(name):
-  mod = load(name)
+  mod = cli.load_experiment(name)
   assert {"smoke", "cpu", "paper"} <= set(mod.PRESETS)
   assert callable(mod.run) and callable(mod.markdown) and callable(mod.main)
 
 
 @pytest.mark.slow  # 7 trainings (A's LL and HL, B's LL, four methods): compile-bound, minutes here
 def test_fig5_writes_curves_png_and_results(tmp_path, monkeypatch):
-  fig5 = load("fig5")
+  fig5 = cli.load_experiment("fig5")
   from experiments import common
   monkeypatch.setattr(common, "RESULTS", tmp_path / "results")  # keep experiments/results clean
   res = fig5.run("test", out=tmp_path / "runs", quiet=True)

@@ -81,7 +81,7 @@ def pm_runs(tmp_path_factory):
   low_cfg = configs.low_config("point", total_env_steps=LOW_STEPS, num_envs=8, updates_per_step=8,
                                steps_per_chunk=LOW_STEPS // 8, num_eval_episodes=4)
   low = train_low("point", low_cfg, seeds=1, out=root / "low", quiet=True)
-  high_cfg = configs.high_config("waypoint", 32, total_env_steps=HIGH_STEPS, num_envs=8,
+  high_cfg = configs.high_config("waypoint", total_env_steps=HIGH_STEPS, num_envs=8,
                                  updates_per_step=8, steps_per_chunk=HIGH_STEPS // 8,
                                  num_eval_episodes=4)
   high = train_high("waypoint", low.run_dir, high_cfg, seeds=1, out=root / "high", quiet=True)
@@ -125,7 +125,8 @@ def test_large_beta_keeps_finetuned_hl_close_to_a(pm_runs):
   assert kl_free > DRIFT, kl_free
 
   # The KL term was active (weight annealed from 10 towards 0) only in the tied run.
-  w = tied.history["regularizer_weight"][0]
+  assert "kl" in tied.history and "regularizer" not in tied.history  # logged under its own name
+  w = tied.history["kl_weight"][0]
   assert 9.0 < w[-1] < 10.0  # beta(t) = 10 * (1 - t / 10000) averaged over the learning steps
   assert np.all(free.history["regularizer_weight"][0] == 1.0)  # default schedule, no regulariser
   assert np.all(free.history["regularizer"][0] == 0.0)
@@ -148,7 +149,7 @@ def test_finetune_starts_from_a_whole_sac_without_warmup(pm_runs, monkeypatch):
   from hdt.transfer import finetune as ft
   captured = {}
   monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw))
-  cfg = configs.high_config("waypoint", 32, total_env_steps=400, num_envs=4, steps_per_chunk=25)
+  cfg = configs.high_config("waypoint", total_env_steps=400, num_envs=4, steps_per_chunk=25)
   assert cfg.learning_starts > 0  # the default is overridden, as the authors' script does
   finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=2, quiet=True)
   a, _ = ckpt.load(high.run_dir, 0)

@@ -26,7 +26,7 @@ def pm_low(tmp_path_factory):
 @pytest.fixture(scope="module")
 def pm_high(pm_low, tmp_path_factory):
   out = tmp_path_factory.mktemp("runs") / "pm_high"
-  cfg = configs.high_config("waypoint", 32, total_env_steps=HIGH_STEPS, num_envs=8, updates_per_step=8,
+  cfg = configs.high_config("waypoint", total_env_steps=HIGH_STEPS, num_envs=8, updates_per_step=8,
                             steps_per_chunk=HIGH_STEPS // 8, num_eval_episodes=8)
   return train_high("waypoint", pm_low.run_dir, cfg, seeds=1, out=out, quiet=True)
 

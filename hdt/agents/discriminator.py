@@ -42,6 +42,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from hdt.agents.plugins import Plugin
+
 TAU_SIZE = 4  # (g - s_t, g - s_{t+1})
 Z_SIZE = 2
 B_LABEL, A_LABEL = 0.95, 0.05  # the authors' soft labels: agent (B) 0.95, expert (A) 0.05
@@ -194,8 +196,14 @@ class Alignment(NamedTuple):
   cfg: DiscConfig
 
   @property
+  def plugin(self) -> Plugin:
+    """The alignment as one :class:`hdt.agents.plugins.Plugin` (combinable with others)."""
+    return Plugin(name="discriminator", init=lambda key, agent: (agent, self.aux_init(key)),
+                  update=self.aux_update, reward=self.reward_fn, transition_extras=self.transition_extras)
+
+  @property
   def plugins(self) -> dict:
-    """The keyword plug-ins of ``make_train`` / ``pipeline._run``."""
+    """The same as make_train's keyword plug-ins (``hdt.transfer.runner.run_stage`` forwards them)."""
     out = dict(reward_fn=self.reward_fn, aux_init=self.aux_init, aux_update=self.aux_update)
     return out | ({"transition_extras": self.transition_extras} if self.transition_extras else {})
 

@@ -7,7 +7,8 @@ of the squashed distributions equals the KL of the pre-tanh ones), and ``beta`` 
 
 ``make_kl_regularizer`` returns a function with the ``actor_regularizer(policy_params, obs) -> scalar``
 signature of :func:`hdt.agents.sac.make_losses` / :func:`hdt.agents.train.make_train`;
-``linear_anneal`` returns an ``actor_regularizer_schedule(env_steps) -> weight``.
+``linear_anneal`` returns an ``actor_regularizer_schedule(env_steps) -> weight``; ``kl_plugin`` is both
+as a :class:`hdt.agents.plugins.Plugin` whose reference lives per seed in the training state.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import jax.numpy as jnp
 import optax
 
 from hdt.agents import networks as nets
+from hdt.agents.plugins import Plugin
 
 Params = Any
 MODES = ("forward", "reverse")
@@ -42,11 +44,23 @@ def make_kl_regularizer(
       sum_d (loc_pi - loc_ref)^2 / (2 scale_ref^2)   (the same for both modes).
   The KL is summed over action dimensions and averaged over all leading (batch) axes of ``obs``.
   """
-  if mode not in MODES:
-    raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi || ref)) or 'reverse' (KL(ref || pi))")
+  term = make_kl_term(policy_apply, mode, mean_only)
   reference_params = jax.tree_util.tree_map(jnp.asarray, reference_params)
 
-  def regularizer(policy_params: Params, obs: jax.Array) -> jax.Array:
+  def regularizer(policy_params, obs):
+    return term(policy_params, reference_params, obs)
+
+  regularizer.metric_name = "kl"  # logged as kl / kl_weight (hdt.agents.sac), not "regularizer"
+  return regularizer
+
+
+def make_kl_term(policy_apply, mode: str = "forward", mean_only: bool = False):
+  """``term(policy_params, reference_params, obs) -> scalar``, the KL of :func:`make_kl_regularizer`
+  with the reference as an argument (gradients stopped), e.g. per-seed plug-in state."""
+  if mode not in MODES:
+    raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi || ref)) or 'reverse' (KL(ref || pi))")
+
+  def term(policy_params: Params, reference_params: Params, obs: jax.Array) -> jax.Array:
     loc, scale = policy_apply(policy_params, obs)
     ref_loc, ref_scale = jax.lax.stop_gradient(policy_apply(reference_params, obs))
     if mean_only:
@@ -57,7 +71,25 @@ def make_kl_regularizer(
       kl = nets.gaussian_kl(ref_loc, ref_scale, loc, scale)
     return jnp.mean(kl)
 
-  return regularizer
+  return term
+
+
+KL_REFERENCE = "kl_reference"  # its key in TrainState.aux
+
+
+def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps: float,
+              mode: str = "forward", mean_only: bool = False) -> Plugin:
+  """The KL term as a training plug-in: ``beta(env_steps) * KL`` (:func:`linear_anneal` from ``beta``
+  to 0 at ``anneal_steps``) to a reference policy kept per seed in ``TrainState.aux["kl_reference"]``;
+  every seed starts with ``reference_params`` (no seed axis)."""
+  term = make_kl_term(policy_apply, mode, mean_only)
+  reference = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), reference_params)
+  return Plugin(
+      name="kl",
+      init=lambda key, agent: (agent, {KL_REFERENCE: reference}),
+      regularizer=lambda state, params, obs: term(params, state[KL_REFERENCE], obs),
+      schedule=linear_anneal(beta, anneal_steps),
+  )
 
 
 def linear_anneal(beta: float, end_steps: float) -> Callable[[jax.Array], jax.Array]:

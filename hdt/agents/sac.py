@@ -7,7 +7,10 @@ a clipped double-Q (twin-min) target, a tanh-squashed Gaussian policy, and a lea
 Two optional plug-ins, both no-ops by default:
 
 * ``actor_regularizer(policy_params, obs) -> scalar`` is added to the actor loss (times a scale the
-  training loop may anneal), e.g. ``beta * KL(pi || pi_ref)`` to a frozen reference policy.
+  training loop may anneal), e.g. ``beta * KL(pi || pi_ref)`` to a frozen reference policy. It is
+  logged as ``<metric_name>`` and its scale as ``<metric_name>_weight``, where ``metric_name`` is
+  the function's attribute of that name ("kl" for :func:`hdt.agents.kl.make_kl_regularizer`;
+  default "regularizer").
 * ``reward_fn(aux_state, batch) -> rewards`` recomputes the rewards of a sampled batch before the
   critic target is formed, e.g. a discriminator bonus whose state lives in ``aux_state``.
 """
@@ -136,13 +139,7 @@ class SACConfig:
         isinstance(self.learning_starts, int) and self.learning_starts >= 0,
         f"learning_starts={self.learning_starts!r}: must be an integer >= 0",
     )
-    need(
-        self.total_env_steps % self.env_steps_per_chunk == 0,
-        f"total_env_steps={self.total_env_steps} is not a multiple of num_envs*steps_per_chunk="
-        f"{self.env_steps_per_chunk}: set total_env_steps to "
-        f"{max(1, round(self.total_env_steps / self.env_steps_per_chunk)) * self.env_steps_per_chunk}"
-        " or change steps_per_chunk",
-    )
+    need(self.total_env_steps % self.env_steps_per_chunk == 0, self._budget_error())
     if isinstance(self.learning_starts, int):
       need(
           self.learning_starts < self.total_env_steps,
@@ -160,6 +157,19 @@ class SACConfig:
     )
     if errors:
       raise ValueError("invalid SACConfig:\n  " + "\n  ".join(errors))
+
+  def _budget_error(self) -> str:
+    """A budget is never rounded: name the nearest whole-chunk budgets and the other fix."""
+    unit = self.env_steps_per_chunk
+    lo, hi = self.total_env_steps // unit * unit, (self.total_env_steps // unit + 1) * unit
+    nearest = max(1, round(self.total_env_steps / unit)) * unit
+    other = lo if nearest == hi else hi
+    near = f"{nearest} or {other}" if other > 0 else f"{nearest}"
+    per_env = self.total_env_steps // self.num_envs
+    other = (f"a steps_per_chunk that divides {per_env}" if self.total_env_steps % self.num_envs == 0
+             else f"a budget that is a multiple of num_envs={self.num_envs}")
+    return (f"total_env_steps={self.total_env_steps} is not a multiple of num_envs*steps_per_chunk="
+            f"{unit}: set total_env_steps to {near} (--total-env-steps), or use {other}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -307,6 +317,7 @@ def make_update(
   actor's log-probs), then the soft target update.
   """
   target_entropy = config.target_entropy_for(action_size)
+  reg_name = getattr(actor_regularizer, "metric_name", "regularizer")
 
   def update(state: SACState, batch: Transition, noise, aux_state=None, reg_scale=1.0, hyper=None):
     h = hyperparams(config, hyper)
@@ -358,8 +369,8 @@ def make_update(
         "entropy": -jnp.mean(a_aux["log_prob"]),
         "q": c_aux["q"],
         "target_q": c_aux["target_q"],
-        "regularizer": a_aux["regularizer"],
-        "regularizer_weight": jnp.asarray(reg_scale, jnp.float32),
+        reg_name: a_aux["regularizer"],
+        f"{reg_name}_weight": jnp.asarray(reg_scale, jnp.float32),
         "batch_reward": jnp.mean(batch.reward),
     }
     return new_state, metrics

@@ -16,7 +16,7 @@ loops chunks on the host, evaluates and reports progress.
 One *training step* = policy actions for the ``num_envs`` parallel envs (uniform-random while
 fewer than ``learning_starts`` env steps have been taken) -> vmapped ``env.step`` -> insert the
 transitions ``(obs, action, next.reward, next.next_obs, next.discount)`` into the replay ->
-optional ``aux_update`` plug-in -> ``updates_per_step`` gradient updates in a ``lax.scan`` (skipped
+the plug-ins' ``update`` (:mod:`hdt.agents.plugins`) -> ``updates_per_step`` gradient updates in a ``lax.scan`` (skipped
 while fewer than ``learning_starts`` env steps have been taken). A *chunk* is ``steps_per_chunk``
 training steps in one ``lax.scan``; the host sees the state only between chunks.
 """
@@ -34,7 +34,9 @@ import numpy as np
 from flax import struct
 
 from hdt import cache
+from hdt.agents import acting
 from hdt.agents import networks as nets
+from hdt.agents import plugins as plugin_lib
 from hdt.agents import normalizer
 from hdt.agents import sharding as sharding_lib
 from hdt.agents import replay as replay_lib
@@ -68,7 +70,7 @@ class TrainState:
   key: jax.Array
   env_steps: jax.Array  # int32, env steps taken (summed over parallel envs)
   episode_return: jax.Array  # (num_envs,) float32, running return of the current training episodes
-  aux: Any  # plug-in state (e.g. a discriminator and its buffer); {} when unused
+  aux: Any  # the plug-ins' per-seed states merged in one dict (e.g. a discriminator, a KL reference)
 
 
 class Trainer(NamedTuple):
@@ -80,8 +82,15 @@ class Trainer(NamedTuple):
   config: SACConfig
 
 
-def _no_aux_update(aux, transitions, env_steps, key):
-  return aux, {}
+def plugin_key(key: jax.Array, index: int) -> jax.Array:
+  """The key plug-in ``index`` gets from a plug-in key of make_train (the first plug-in gets it
+  unchanged, so a run with one plug-in draws what it drew before plug-ins were lists)."""
+  return key if index == 0 else jax.random.fold_in(key, index)
+
+
+def plugin_init_key(seed_key: jax.Array, index: int) -> jax.Array:
+  """The key ``Trainer.init(seed_key)`` gives plug-in ``index``'s init."""
+  return plugin_key(jax.random.split(seed_key, 4)[2], index)
 
 
 def _set_obs_norm(agent: SACState, stats) -> SACState:
@@ -166,11 +175,20 @@ def _normal_from_bits(bits: jax.Array) -> jax.Array:
   return jnp.float32(np.sqrt(2.0)) * jax.lax.erf_inv(u)
 
 
+def make_networks(env, config: SACConfig) -> nets.SACNetworks:
+  """The SAC networks make_train builds for ``env`` and ``config`` (pure functions; cheap)."""
+  return nets.make_sac_networks(
+      int(env.observation_size), int(env.action_size), config.hidden_sizes, config.critic_sizes,
+      normalize_observations=config.normalize_observations,
+  )
+
+
 def make_train(
     env,
     config: SACConfig,
     *,
     networks: nets.SACNetworks | None = None,
+    plugins: Sequence[plugin_lib.Plugin] = (),
     actor_regularizer: ActorRegularizer | None = None,
     actor_regularizer_schedule: Schedule | None = None,
     reward_fn: RewardFn | None = None,
@@ -180,7 +198,11 @@ def make_train(
 ) -> Trainer:
   """Builds the pure functions ``init``, ``run_chunk``, ``evaluate`` and ``train``.
 
-  Plug-ins (all optional, no-ops by default):
+  plugins: :class:`hdt.agents.plugins.Plugin` objects (init, update, reward, regularizer, schedule,
+    transition_extras; each optional), folded over in order. Their per-seed states are merged into
+    ``TrainState.aux``. Plug-in ``i`` gets the key :func:`plugin_key` ``(seed key, i)`` at init and a
+    per-step key derived the same way.
+  The keyword callables are one more plug-in, placed first (kept for callers that predate plugins):
     actor_regularizer(policy_params, obs) -> scalar, added to the actor loss, multiplied by
       actor_regularizer_schedule(env_steps) (default 1).
     reward_fn(aux_state, batch) -> rewards, recomputes sampled rewards before the critic target.
@@ -189,36 +211,85 @@ def make_train(
       new transitions were inserted (metrics are averaged over the chunk).
   """
   obs_size, act_size = int(env.observation_size), int(env.action_size)
-  if networks is None:
-    networks = nets.make_sac_networks(
-        obs_size, act_size, config.hidden_sizes, config.critic_sizes,
-        normalize_observations=config.normalize_observations,
-    )
-  update = make_update(
-      networks, config, act_size, actor_regularizer=actor_regularizer, reward_fn=reward_fn
-  )
-  aux_init = aux_init or (lambda key: {})
-  aux_update = aux_update or _no_aux_update
-  schedule = actor_regularizer_schedule or (lambda env_steps: jnp.ones((), jnp.float32))
+  networks = make_networks(env, config) if networks is None else networks
+  legacy = plugin_lib.from_callables(actor_regularizer, actor_regularizer_schedule, reward_fn, aux_init,
+                                     aux_update, transition_extras)
+  plugins = plugin_lib.check(([legacy] if legacy else []) + list(plugins))
   n_envs, batch_size = config.num_envs, config.batch_size
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
+  deterministic_policy = lambda params, obs: nets.deterministic_action(networks.policy_apply(params, obs)[0])
   spec = replay_lib.make_transition_spec(obs_size, act_size)
-  if transition_extras is not None:
+  extras_fn = next((p.transition_extras for p in plugins if p.transition_extras), None)
+  if extras_fn is not None:
     one = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
     spec = spec.replace(extras=jax.tree_util.tree_map(
-        lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(transition_extras, one, one)))
+        lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(extras_fn, one, one)))
+
+  # Which keys of TrainState.aux each plug-in owns (from the shapes of its initial state).
+  agent_shape = jax.eval_shape(functools.partial(init_sac_state, networks, config), jax.random.PRNGKey(0))
+  owned = []
+  for p in plugins:
+    state = {} if p.init is None else jax.eval_shape(lambda k, a: p.init(k, a)[1], jax.random.PRNGKey(0),
+                                                     agent_shape)
+    if not isinstance(state, dict):
+      raise TypeError(f"plug-in {p.name!r}: its initial state must be a dict (its keys in TrainState.aux), "
+                      f"got {type(state).__name__}")
+    keys = list(state)
+    taken = [k for k in keys if any(k in o for o in owned)]
+    if taken:
+      raise ValueError(f"plug-in {p.name!r} uses TrainState.aux keys {taken} that another plug-in owns")
+    owned.append(keys)
+  regularizing = [(p, keys) for p, keys in zip(plugins, owned) if p.regularizer is not None]
+  reg_plugin = regularizing[0] if regularizing else None
+  reg_schedule = next((p.schedule for p in plugins if p.schedule is not None), None)
+  schedule = reg_schedule or (lambda env_steps: jnp.ones((), jnp.float32))
+  rewarding = [(p, keys) for p, keys in zip(plugins, owned) if p.reward is not None]
+
+  def plugin_reward(aux, batch):
+    for p, keys in rewarding:
+      batch = batch.replace(reward=p.reward(plugin_lib.own(aux, keys), batch).astype(batch.reward.dtype))
+    return batch.reward
+
+  def make_update_with(aux):
+    """One gradient update whose actor regulariser sees the plug-in's state (per seed)."""
+    reg = None
+    if reg_plugin is not None:
+      p, keys = reg_plugin
+      def reg(params, obs):
+        return p.regularizer(plugin_lib.own(aux, keys), params, obs)
+      reg.metric_name = p.name if p.name == "kl" else "regularizer"  # logged as kl / kl_weight
+    return make_update(networks, config, act_size, actor_regularizer=reg,
+                       reward_fn=plugin_reward if rewarding else None)
+
+  def plugins_init(key, agent):
+    aux = {}
+    for i, p in enumerate(plugins):
+      if p.init is not None:
+        agent, state = p.init(plugin_key(key, i), agent)
+        aux.update(state)
+    return agent, aux
+
+  def plugins_update(aux, transitions, env_steps, key):
+    aux, metrics = dict(aux), {}
+    for i, (p, keys) in enumerate(zip(plugins, owned)):
+      if p.update is not None:
+        state, m = p.update(plugin_lib.own(aux, keys), transitions, env_steps, plugin_key(key, i))
+        aux.update(state)
+        metrics.update(m)
+    return aux, metrics
 
   # ---------------------------------------------------------------------------------------------
   def init(key: jax.Array) -> TrainState:
     k_agent, k_env, k_aux, k_next = jax.random.split(key, 4)
+    agent, aux = plugins_init(k_aux, init_sac_state(networks, config, k_agent))
     return TrainState(
-        agent=init_sac_state(networks, config, k_agent),
+        agent=agent,
         replay=replay_lib.init(config.buffer_size, spec),
         env_state=v_reset(jax.random.split(k_env, n_envs)),
         key=k_next,
         env_steps=jnp.zeros((), jnp.int32),
         episode_return=jnp.zeros((n_envs,), jnp.float32),
-        aux=aux_init(k_aux),
+        aux=aux,
     )
 
   # ---------------------------------------------------------------------------------------------
@@ -238,6 +309,8 @@ def make_train(
     return batches, noise
 
   def gradient_updates(agent: SACState, batches, noise, aux, reg_scale, hyper):
+    update = make_update_with(aux)
+
     def one(agent, xs):
       batch, eps = xs
       return update(agent, batch, eps, aux, reg_scale, hyper)
@@ -266,10 +339,10 @@ def make_train(
     transitions = Transition(
         obs=f32(obs), action=f32(action), reward=f32(nxt.reward), next_obs=f32(nxt.next_obs),
         discount=f32(nxt.discount),
-        extras=None if transition_extras is None else jax.vmap(transition_extras)(ts.env_state, nxt),
+        extras=None if extras_fn is None else jax.vmap(extras_fn)(ts.env_state, nxt),
     )
     env_steps = ts.env_steps + n_envs
-    aux, aux_metrics = aux_update(ts.aux, transitions, env_steps, k_aux)
+    aux, aux_metrics = plugins_update(ts.aux, transitions, env_steps, k_aux)
 
     # Insert, then gather all G batches, outside the lax.cond. Measured on CPU: gathering from
     # the pre-insert buffer, or passing the buffer into the cond, made XLA copy the whole buffer
@@ -327,61 +400,9 @@ def make_train(
 
   # ---------------------------------------------------------------------------------------------
   def evaluate(policy_params, key: jax.Array) -> dict:
-    """Deterministic (tanh(mean)) rollouts of ``num_eval_episodes`` parallel episodes.
-
-    Each episode is counted up to and including its first ``done`` (within ``env.horizon`` steps).
-    Returns ``return`` (mean over episodes), ``return_std``, ``length``, and for each entry ``k``
-    of ``state.metrics``: ``k`` (mean over the episode's steps), ``k_max`` and ``k_final`` (value
-    at the episode's last step), each averaged over episodes.
-    """
-    n = config.num_eval_episodes
-    s0 = v_reset(jax.random.split(key, n))
-    m0 = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), s0.metrics)
-    zeros_like = lambda t: jax.tree_util.tree_map(jnp.zeros_like, t)
-    carry0 = dict(
-        state=s0,
-        alive=jnp.ones((n,), jnp.float32),
-        ret=jnp.zeros((n,), jnp.float32),
-        length=jnp.zeros((n,), jnp.float32),
-        msum=zeros_like(m0),
-        mmax=jax.tree_util.tree_map(lambda x: jnp.full_like(x, -jnp.inf), m0),
-        mlast=zeros_like(m0),
-    )
-
-    def bcast(alive, x):
-      return alive.reshape(alive.shape + (1,) * (x.ndim - 1))
-
-    def step(c, _):
-      loc, _ = networks.policy_apply(policy_params, c["state"].obs)
-      s = v_step(c["state"], nets.deterministic_action(loc))
-      alive = c["alive"]
-      m = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), s.metrics)
-      on = lambda x: bcast(alive, x) > 0
-      return dict(
-          state=s,
-          alive=alive * (1.0 - jnp.asarray(s.done, jnp.float32)),
-          ret=c["ret"] + alive * jnp.asarray(s.reward, jnp.float32),
-          length=c["length"] + alive,
-          msum=jax.tree_util.tree_map(lambda a, x: a + bcast(alive, x) * x, c["msum"], m),
-          mmax=jax.tree_util.tree_map(
-              lambda a, x: jnp.where(on(x), jnp.maximum(a, x), a), c["mmax"], m
-          ),
-          mlast=jax.tree_util.tree_map(lambda a, x: jnp.where(on(x), x, a), c["mlast"], m),
-      ), None
-
-    c, _ = jax.lax.scan(step, carry0, None, length=env.horizon)
-    length = jnp.maximum(c["length"], 1.0)
-    out = {
-        "return": jnp.mean(c["ret"]),
-        "return_std": jnp.std(c["ret"]),
-        "length": jnp.mean(c["length"]),
-    }
-    for k in c["msum"]:
-      x = c["msum"][k]
-      out[k] = jnp.mean(x / length.reshape(length.shape + (1,) * (x.ndim - 1)), axis=0)
-      out[k + "_max"] = jnp.mean(c["mmax"][k], axis=0)
-      out[k + "_final"] = jnp.mean(c["mlast"][k], axis=0)
-    return out
+    """Deterministic (tanh(mean)) rollouts of ``num_eval_episodes`` parallel episodes
+    (:func:`hdt.agents.acting.evaluate`)."""
+    return acting.evaluate(env, deterministic_policy, policy_params, key, config.num_eval_episodes)
 
   # ---------------------------------------------------------------------------------------------
   def train(key: jax.Array, hyper: dict | None = None) -> tuple[TrainState, dict]:

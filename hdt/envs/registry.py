@@ -36,6 +36,9 @@ def make(agent: str, task: str, backend: str = "auto", **overrides) -> AgentTask
                           f"{spec.family} agent")
     raise ValueError(f"agent {agent!r} cannot run task {task!r} ({why}); tasks for {agent}: "
                      f"{', '.join(supported_tasks(agent))}")
+  if "ll_budget" in overrides:  # a training default stored on the agent, not a physics option
+    raise ValueError("ll_budget is the LL's training budget, not an env option: set total_env_steps "
+                     "(--total-env-steps) instead")
   agent_fields = {f.name for f in dataclasses.fields(spec)}
   task_obj = TASKS[task]()
   task_fields = {f.name for f in dataclasses.fields(task_obj)}

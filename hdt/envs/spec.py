@@ -18,6 +18,7 @@ class AgentSpec:
   delta_max: float  # goal box half-width per axis (m)
   ll_horizon: int  # LL training episode length
   reset_prob: float  # chance of a physics reset at the end of an LL episode
+  ll_budget: int  # the paper's LL training budget in env steps (hdt.transfer.configs reads it)
   qpos_skip: int = 0  # leading agent qpos entries left out of obs_lo (global x, y)
   trig_angles: bool = False  # observe hinge angles as (cos, sin)
   fall_z: tuple[float, float] | None = None  # torso height bounds; outside them the agent has fallen

@@ -7,7 +7,7 @@ end effector, block), so one task serves every agent of its family.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -36,6 +36,27 @@ class Task:
   skill_penalty: float = 0.05
   hl_eps: float | None = None
   low_level: bool = False  # the LL reach task (its own episode starts, AgentSpec.ll_qpos_*)
+
+  # -- defaults read by training and reporting (class data, not env options) ----------------------
+  # The paper's HL budget in HL decisions (its HL "Timesteps", Appendix D); also the Full baseline's
+  # budget in LL env steps (paper table). 0: the task has no HL (reach).
+  hl_budget: ClassVar[int] = 0
+  # HL finetuning with a KL tie to A's HL (SPEC 4): initial weight beta and learning rate.
+  finetune_kl: ClassVar[float] = 1.0
+  finetune_lr: ClassVar[float] = 1e-2
+  # The metric a table reports: "success" (episode success rate) or "return".
+  headline: ClassVar[str] = "return"
+  # How one HL step reduces each per-LL-step metric ("mean" over the LL steps taken unless listed):
+  # "last" = its value at the end of the step, "max", "sum". The env adds "fall" for every task.
+  step_reduce: ClassVar[dict[str, str]] = {"fall": "max", "success": "last"}
+
+  @property
+  def headline_column(self) -> str:
+    """The evaluation column of the headline metric in a run's history (metrics.csv)."""
+    return "eval/success_max" if self.headline == "success" else "eval/return"
+
+  def reduction(self, metric: str) -> str:
+    return self.step_reduce.get(metric, "mean")
 
   # -- scene -------------------------------------------------------------------------------------
   def scene(self, agent: AgentSpec) -> str:
@@ -95,6 +116,7 @@ class Reach(Task):
 
   name: str = "reach"
   low_level: bool = True
+  headline: ClassVar[str] = "success"
   terrain: str = "plane"  # "steps": random low barriers and 16 rangefinders (the Steps LL)
 
   def __post_init__(self):
@@ -161,6 +183,8 @@ class Waypoint(Task):
   hl_relative: tuple[int, ...] = (2,)
   hl_absolute: bool = False
   skill_penalty: float = 0.25  # point_mass.py PointMassLargeMJ, ant.py Ant
+  hl_budget: ClassVar[int] = 200_000
+  step_reduce: ClassVar[dict[str, str]] = Task.step_reduce | {"waypoints": "sum"}  # any LL step may hit one
 
   def sample(self, key, agent, q):
     return {"waypoint": _disc(key, self.radius)}
@@ -196,6 +220,10 @@ class Maze(Task):
   bonus: float = 1000.0
   scene_file: str = "maze.xml"
   skill_penalty: float = 0.005  # maze.py PointMaze / AntMaze
+  hl_budget: ClassVar[int] = 400_000
+  finetune_kl: ClassVar[float] = 0.01
+  finetune_lr: ClassVar[float] = 1e-3
+  headline: ClassVar[str] = "success"
 
   def __post_init__(self):
     if self.goal not in ("sample", "end"):
@@ -245,6 +273,8 @@ class Push(Task):
   tolerance: float = 0.025
   bonus: float = 200.0
   objects: tuple = (("block.xml", "block/"),)
+  hl_budget: ClassVar[int] = 500_000
+  headline: ClassVar[str] = "success"
 
   def customize(self, spec):
     spec.site("block/destination").pos = [*self.destination, 0.001]
@@ -271,6 +301,8 @@ class Insert(Task):
   tools: tuple = (("peg.xml", "peg/"),)
   hl_eps: float | None = 0.015  # insert.py Insert: epsilon_low
   target: tuple[float, float] = (0.0, -0.19)
+  hl_budget: ClassVar[int] = 500_000
+  headline: ClassVar[str] = "success"
 
   def obs_hi(self, q, t):
     return jnp.concatenate([q["point"], q["tip"]])
@@ -292,3 +324,10 @@ TASKS = {
     "push2": lambda **kw: Push(**{"name": "push2", "destination": (-0.12, -0.13), **kw}),
     "insert": Insert,
 }
+
+
+def get_task(name: str, **overrides) -> Task:
+  """The task registered as ``name`` (unknown names are refused with the list of valid ones)."""
+  if name not in TASKS:
+    raise ValueError(f"unknown task {name!r}; choose one of {', '.join(TASKS)}")
+  return TASKS[name](**overrides)

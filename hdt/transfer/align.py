@@ -16,7 +16,9 @@ from hdt.agents.sac import SACConfig
 from hdt.envs import make
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.pipeline import RunResult, _run, env_meta, load_low
+from hdt.transfer.card import PolicyCard, load_low
+from hdt.transfer.runner import RunResult
+from hdt.transfer.runner import run_stage as _run  # (tests spy on align's _run)
 
 
 def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
@@ -36,17 +38,12 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
   params_a, meta_a, fn_a = load_low(imitate, imitate_seed)
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = config or configs.low_config(agent)
-  meta = env_meta(env, "low", config, env_overrides=env_overrides)
-  if meta_a.get("family") != meta["family"] or meta_a.get("goal_space") != meta["goal_space"]:
-    raise ValueError(
-        f"cannot align {agent!r} to the LL in {imitate} ({meta_a.get('agent')!r}): goal spaces "
-        f"differ ({meta['goal_space']} vs {meta_a.get('goal_space')}); A and B must both be nav or "
-        f"both manip agents")
-  if env.observation_size < 2 or meta_a["obs_size"] < 2:
-    raise ckpt.CheckpointError("LL observations must end with the 2 goal-space entries g - s")
-  tau_scale = float(meta_a.get("delta_max") or 1.0) if disc.scale_inputs else 1.0
+  card = PolicyCard.from_env(env, "low", config, env_overrides=env_overrides)
+  card_a = PolicyCard.from_json(meta_a, imitate)
+  card_a.compatible_with(card, "align")
+  tau_scale = float(card_a.delta_max or 1.0) if disc.scale_inputs else 1.0
   if disc.data == "online":
-    env_a = make(meta_a["agent"], "reach", backend=backend, **(meta_a.get("env_overrides") or {}))
+    env_a = card_a.make_env("reach", backend)
     expert = disc_lib.OnlineExpert(env_a, fn_a, params_a["policy"])
     al = disc_lib.make_alignment(disc, None, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale, expert=expert)
@@ -55,7 +52,7 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
                             seed_index=imitate_seed, include_z=disc.include_z)
     al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale)
-  meta = dict(meta, aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
+  meta = dict(card.to_json(), aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
                                     n_offline=int(n_offline) if disc.data == "offline" else 0,
                                     offline_seed=offline_seed, tau_scale=tau_scale,
                                     sha256=ckpt.content_hash(imitate, imitate_seed)),
@@ -86,7 +83,7 @@ def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: i
   (deterministic actions) on its reach task (uniform goals in its goal box, the LL training episode
   structure), ``num_envs`` envs in parallel; z is the relative goal of A's own episode."""
   params, meta, fn = load_low(low_run_dir, seed_index)
-  env = make(meta["agent"], "reach", backend=backend, **(meta.get("env_overrides") or {}))
+  env = PolicyCard.from_json(meta, low_run_dir).make_env("reach", backend)
   policy = params["policy"]
   steps = -(-int(n) // num_envs)
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)

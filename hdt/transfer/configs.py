@@ -1,4 +1,11 @@
-"""The paper's SAC hyper-parameters per level and agent family (SPEC 4, paper Appendix D)."""
+"""The one table of training defaults and presets, shared by the CLI, the Python API and experiments/.
+
+The paper's SAC hyper-parameters per level and agent family (SPEC 4, paper Appendix D) and the
+budgets of ``--preset``. Defaults that belong to an agent or a task are data on them and read here:
+``AgentSpec.ll_budget`` (LL env steps), ``Task.hl_budget`` (HL decisions; the Full baseline's LL env
+steps), ``Task.finetune_kl`` / ``finetune_lr``. Budgets are validated, never rounded: a budget that
+does not split into whole chunks is refused with the nearest valid values.
+"""
 
 from __future__ import annotations
 
@@ -6,25 +13,36 @@ import dataclasses
 
 from hdt.agents.sac import SACConfig
 from hdt.envs.robot import agent_spec
+from hdt.envs.tasks import TASKS, get_task
 
-# Low level: PM nav 200k / lr 3e-4 / batch 64 / [64,64] / buffer 200k; legged 2.5M / 8e-4 / 100 /
-# [400,300] / 1M; manipulation 1.2M / 3e-4 / 100 / [128,96] / 250k.
+# Low level per family (budgets: AgentSpec.ll_budget): PM nav lr 3e-4 / batch 64 / [64,64] / buffer
+# 200k; legged 8e-4 / 100 / [400,300] / 1M; manipulation 3e-4 / 100 / [128,96] / 250k.
 _LOW = {
-    "point": dict(total_env_steps=200_000, actor_lr=3e-4, batch_size=64, hidden_sizes=(64, 64),
-                  buffer_size=200_000),
-    "legged": dict(total_env_steps=2_500_000, actor_lr=8e-4, batch_size=100, hidden_sizes=(400, 300),
-                   buffer_size=1_000_000),
-    "manip": dict(total_env_steps=1_200_000, actor_lr=3e-4, batch_size=100, hidden_sizes=(128, 96),
-                  buffer_size=250_000),
+    "point": dict(actor_lr=3e-4, batch_size=64, hidden_sizes=(64, 64), buffer_size=200_000),
+    "legged": dict(actor_lr=8e-4, batch_size=100, hidden_sizes=(400, 300), buffer_size=1_000_000),
+    "manip": dict(actor_lr=3e-4, batch_size=100, hidden_sizes=(128, 96), buffer_size=250_000),
 }
-# High level: [64,64], lr 3e-4, batch 64, buffer 50k. Budgets are HL decisions (the paper's HL
-# "Timesteps": SB2's SAC takes one env.step per timestep, and one step of the authors' HighLevelEnv is
-# one sub-goal; utils/trainer.py, utils/loader.py).
+# High level: [64,64], lr 3e-4, batch 64, buffer 50k. Budgets (Task.hl_budget) are HL decisions (the
+# paper's HL "Timesteps": SB2's SAC takes one env.step per timestep, and one step of the authors'
+# HighLevelEnv is one sub-goal; utils/trainer.py, utils/loader.py).
 _HIGH = dict(actor_lr=3e-4, batch_size=64, hidden_sizes=(64, 64), buffer_size=50_000)
-HIGH_DECISIONS = {"waypoint": 200_000, "maze": 400_000, "steps": 400_000, "push1": 500_000,
-                  "push2": 500_000, "insert": 500_000}
-# The Full baseline takes one torque per env step, so its budget is in LL env steps (paper table).
-FULL_STEPS = HIGH_DECISIONS
+_CHUNK = 1000  # training steps per compiled chunk unless a preset or the caller sets it
+
+
+def family_key(agent: str) -> str:
+  """The budget family of ``agent`` (a name or a robot file): "point" (a nav robot that cannot fall),
+  "legged" or "manip"."""
+  spec = agent_spec(agent)
+  return "legged" if spec.legged else "point" if spec.family == "nav" else "manip"
+
+
+def hl_budget(task: str) -> int:
+  """The paper's HL budget of ``task`` in HL decisions (unknown tasks and reach are refused)."""
+  t = get_task(task)
+  if not t.hl_budget:
+    with_hl = [n for n in TASKS if TASKS[n]().hl_budget]
+    raise ValueError(f"task {task!r} has no HL budget (it is the LL's task); HL tasks: {', '.join(with_hl)}")
+  return t.hl_budget
 
 
 def _lrs(d):
@@ -33,41 +51,50 @@ def _lrs(d):
 
 
 def _fit(cfg: dict) -> SACConfig:
-  """Round total steps to whole chunks so the config validates."""
-  cfg["steps_per_chunk"] = min(cfg.get("steps_per_chunk", 1000), max(1, cfg["total_env_steps"] // cfg.get("num_envs", 1)))
-  chunk = cfg.get("num_envs", 1) * cfg["steps_per_chunk"]
-  cfg["total_env_steps"] = max(1, round(cfg["total_env_steps"] / chunk)) * chunk
+  """The chunk defaults to at most 1000 training steps (fewer for a tiny budget) and learning starts
+  within the first half; the budget itself is never changed (SACConfig refuses one that does not
+  split into whole chunks, naming the nearest valid values)."""
+  cfg["steps_per_chunk"] = min(cfg.get("steps_per_chunk", _CHUNK),
+                               max(1, cfg["total_env_steps"] // cfg.get("num_envs", 1)))
   cfg["learning_starts"] = min(cfg.get("learning_starts", 100), cfg["total_env_steps"] // 2)
   return SACConfig(**cfg)
 
 
 def low_config(agent: str, **overrides) -> SACConfig:
-  base = _LOW[family_key(agent)]
-  return _fit(_lrs(dict(base)) | overrides)
-
-
-def high_config(task: str, k: int | None = None, **overrides) -> SACConfig:
-  """HL SAC config; ``total_env_steps`` counts HL decisions (``k`` is accepted for old callers and
-  does not change the budget)."""
-  if task not in HIGH_DECISIONS:
-    raise ValueError(f"no HL budget for task {task!r}; tasks with one: {', '.join(HIGH_DECISIONS)}")
-  base = dict(_HIGH, total_env_steps=HIGH_DECISIONS[task])
+  base = dict(_LOW[family_key(agent)], total_env_steps=agent_spec(agent).ll_budget)
   return _fit(_lrs(base) | overrides)
 
 
+def high_config(task: str, **overrides) -> SACConfig:
+  """HL SAC config; ``total_env_steps`` counts HL decisions."""
+  return _fit(_lrs(dict(_HIGH, total_env_steps=hl_budget(task))) | overrides)
+
+
 def full_config(agent: str, task: str, **overrides) -> SACConfig:
-  """Flat SAC on the task with the agent's torques: the agent's LL network, the task's budget."""
-  if task not in FULL_STEPS:
-    raise ValueError(f"no Full budget for task {task!r}; tasks with one: {', '.join(FULL_STEPS)}")
-  return low_config(agent, **(dict(total_env_steps=FULL_STEPS[task]) | overrides))
+  """Flat SAC on the task with the agent's torques: the agent's LL network, the task's budget (the
+  Full baseline takes one torque per env step, so its budget is in LL env steps; paper table)."""
+  return low_config(agent, **(dict(total_env_steps=hl_budget(task)) | overrides))
 
 
 def replace(cfg: SACConfig, **kw) -> SACConfig:
   return _fit(dataclasses.asdict(cfg) | kw)
 
 
-# Budgets of the CLI's --preset: "smoke" (CI, seconds), "cpu" (this 2-core machine, minutes),
-# "paper" (the defaults above). Entries are SACConfig overrides per level; LL budgets per family.
+def chunk_for(total_env_steps: int, num_envs: int, evals: int) -> int:
+  """``steps_per_chunk`` that splits a budget into ``evals`` equal chunks (an evaluation after each);
+  a budget that does not split is refused with the nearest ones that do."""
+  unit = num_envs * evals
+  if total_env_steps <= 0 or total_env_steps % unit:
+    lo, hi = total_env_steps // unit * unit, (total_env_steps // unit + 1) * unit
+    near = f"{lo} or {hi}" if lo > 0 else f"{hi}"
+    raise ValueError(f"total_env_steps={total_env_steps} does not split into {evals} chunks of {num_envs} "
+                     f"envs: use a multiple of {unit}, e.g. {near}")
+  return total_env_steps // unit
+
+
+# Budgets of --preset: "smoke" (CI, seconds), "cpu" (this 2-core machine, minutes), "paper" (the
+# defaults above). Entries are SACConfig overrides per level ("low" also serves Full); the cpu LL
+# budget is per family, split into 10 evaluation chunks.
 PRESETS = {
     "smoke": dict(low=dict(total_env_steps=2000, num_envs=4, updates_per_step=4, steps_per_chunk=100,
                            num_eval_episodes=4),
@@ -79,6 +106,7 @@ PRESETS = {
     "paper": dict(low={}, high={}),
 }
 CPU_LOW_STEPS = {"point": 20_000, "manip": 60_000, "legged": 100_000}
+CPU_LOW_EVALS = 10
 
 
 # Deliberate departures from the authors' code that hdt makes by default (SPEC.md, "Departures"), as
@@ -94,13 +122,6 @@ def task_options(preset: str, task: str) -> dict:
   return dict(PAPER_TASK_OPTIONS.get(task, {})) if preset == "paper" else {}
 
 
-def family_key(agent: str) -> str:
-  """The budget family of ``agent`` (a name or a robot file): "point" (a nav robot that cannot fall),
-  "legged" or "manip"."""
-  spec = agent_spec(agent)
-  return "legged" if spec.legged else "point" if spec.family == "nav" else "manip"
-
-
 def preset_overrides(preset: str, level: str, agent: str | None = None) -> dict:
   """SACConfig overrides of ``preset`` for ``level`` ("low", "high" or "full")."""
   if preset not in PRESETS:
@@ -108,8 +129,32 @@ def preset_overrides(preset: str, level: str, agent: str | None = None) -> dict:
   over = dict(PRESETS[preset]["high" if level == "high" else "low"])
   if preset == "cpu" and level in ("low", "full"):
     steps = CPU_LOW_STEPS[family_key(agent)]
-    over |= dict(total_env_steps=steps, steps_per_chunk=max(1, steps // over["num_envs"] // 10))
+    over |= dict(total_env_steps=steps, steps_per_chunk=chunk_for(steps, over["num_envs"], CPU_LOW_EVALS))
   return over
+
+
+def describe_paper_budgets() -> str:
+  """The paper preset's budgets in one line (``--preset`` help), read from the agents and tasks."""
+  from hdt.envs.families import FAMILIES
+  k = lambda n: f"{n / 1e6:g}M" if n >= 1e6 else f"{n // 1000}k"
+  low = "/".join(k(f["ll_budget"]) for f in FAMILIES.values())
+  high = ", ".join(f"{k(hl_budget(t))} {t}" for t in TASKS if TASKS[t]().hl_budget)
+  return f"{low} LL steps ({'/'.join(FAMILIES)}), {high} HL decisions"
+
+
+def config(level: str, preset: str = "paper", agent: str | None = None, task: str | None = None,
+           **overrides) -> SACConfig:
+  """The SACConfig of a training stage: the paper's values for the agent (``low``, ``full``) or the
+  task (``high``, ``full``), then ``preset``'s budget, then ``overrides``. The CLI and experiments/
+  both build their configs here."""
+  over = preset_overrides(preset, level, agent) | overrides
+  if level == "high":
+    return high_config(task, **over)
+  if level == "full":
+    return full_config(agent, task, **over)
+  if level == "low":
+    return low_config(agent, **over)
+  raise ValueError(f"unknown level {level!r}; choose low, high or full")
 
 
 def disc_config(agent_a: str, **overrides):
@@ -123,6 +168,7 @@ def disc_config(agent_a: str, **overrides):
 
 
 def finetune_params(task: str) -> dict:
-  """KL weight beta and learning rate of HL finetuning (SPEC 4): Maze beta 0.01 lr 1e-3; Waypoint and
-  manipulation beta 1, lr 1e-2."""
-  return dict(kl=0.01, lr=1e-3) if task in ("maze", "steps") else dict(kl=1.0, lr=1e-2)
+  """KL weight beta and learning rate of HL finetuning (SPEC 4; ``Task.finetune_kl`` / ``finetune_lr``):
+  Maze and Steps beta 0.01 lr 1e-3; Waypoint and manipulation beta 1, lr 1e-2."""
+  t = get_task(task)
+  return dict(kl=t.finetune_kl, lr=t.finetune_lr)

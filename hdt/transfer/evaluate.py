@@ -10,16 +10,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hdt.agents.sac import SACConfig
-from hdt.agents.train import make_train
-from hdt.envs import make
-from hdt.envs.robot import check_recorded
-from hdt.envs.tasks import TASKS
+from hdt.agents import acting
+from hdt.envs.tasks import TASKS, get_task
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer.pipeline import (LOW_PARAMS, build_high_env, check_memory, hl_obs_layout, low_policy_fn,
-                                   state_bytes)
-
-_GOAL_SPACE = {"nav": "navigation (torso xy)", "manip": "manipulation (end-effector xy)"}
+from hdt.transfer.card import REQUIRED, PolicyCard
+from hdt.transfer.pipeline import LOW_PARAMS
+from hdt.transfer.runner import check_memory, state_bytes
 
 
 @dataclasses.dataclass
@@ -38,20 +34,26 @@ class Policy:
     return (self.low_meta or self.meta)["agent"]
 
   @property
+  def card(self) -> PolicyCard:
+    return PolicyCard.from_json(self.meta)
+
+  @property
+  def low_card(self) -> PolicyCard | None:
+    return None if self.low_meta is None else PolicyCard.from_json(self.low_meta)
+
+  @property
   def num_seeds(self) -> int:
     return int(jax.tree.leaves(self.params)[0].shape[0])
 
 
-# What a policy checkpoint's metadata must hold to be run (checked, so an edited file is one line).
-POLICY_FIELDS = {"level": str, "agent": str, "task": str, "family": str, "obs_size": int, "action_size": int,
-                 "hidden_sizes": list, "delta_max": (int, float), "k": int}
+POLICY_FIELDS = REQUIRED  # what a policy's card must hold to be run
 
 
 def _load(run, which: str, what: str):
   """(params, metas) of every seed; metas[0]["params"] labels them all (ckpt.params_label)."""
   params, metas = ckpt.load_all(run, ckpt.check_which(which, what))
   for i, m in enumerate(metas):
-    ckpt.require(m, POLICY_FIELDS, Path(run) / f"seed_{i}" / "meta.json")
+    PolicyCard.from_json(m, Path(run) / f"seed_{i}" / "meta.json")  # of a format and with fields this hdt reads
   return params, [dict(metas[0], params=ckpt.params_label(metas))] + metas[1:]
 
 
@@ -113,25 +115,8 @@ def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str =
   lp, lmetas = _load(low, low_which, "low_which")
   hm, lm = hmetas[0], lmetas[0]
   check_low_unchanged(high, hm, low)
-  if hm.get("level") != "high":
-    raise ckpt.CheckpointError(f"{high} holds a {hm.get('level')!r}-level policy; compose needs an HL "
-                               f"(from `hdt train high`) as high=")
-  if lm.get("level") != "low":
-    raise ckpt.CheckpointError(f"{low} holds a {lm.get('level')!r}-level policy; compose needs an LL "
-                               f"(from `hdt train low`) as low=")
-  if hm["family"] != lm["family"]:
-    raise ValueError(
-        f"goal spaces do not match: the HL in {high} emits {_GOAL_SPACE[hm['family']]} sub-goals, the "
-        f"LL in {low} ({lm['agent']}) reaches {_GOAL_SPACE[lm['family']]} goals; pair an HL and an LL "
-        f"of the same family")
-  dm = hm["delta_max"]
-  if not np.isclose(hm["delta_max"], lm["delta_max"]):
-    if box == "scale":
-      dm = lm["delta_max"]
-    elif box != "keep":
-      raise ValueError(f"goal boxes differ: HL sub-goals span +-{hm['delta_max']} but the LL was trained "
-                       f"on +-{lm['delta_max']}; pass box='scale' to map the HL's box onto the LL's, or "
-                       f"box='keep' to keep the HL's box in metres")
+  hc, lc = PolicyCard.from_json(hm, high), PolicyCard.from_json(lm, low)
+  dm = hc.compatible_with(lc, "compose", box=box)
   # Over its own LL run an HL is evaluated on the LL seed it was trained over (train_high's low_seed);
   # in a transfer, HL seed i drives LL seed i (cycling when one run has fewer seeds).
   own = trained_over(hm, low)
@@ -143,21 +128,14 @@ def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str =
 
 def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, record=False,
              **task_overrides):
+  card = policy.card
+  task = task or card.task
   if policy.low_meta is None:  # flat policy: LL on reach, or a Full policy on its task
-    task = task or policy.meta["task"]
-    check_recorded(policy.meta)
-    env = make(policy.meta["agent"], task, backend=backend,
-               **(policy.meta.get("env_overrides") or {}) | task_overrides)
-    if env.observation_size != policy.meta["obs_size"]:
-      raise ValueError(f"the policy observes {policy.meta['obs_size']} numbers, {policy.meta['agent']} "
-                       f"on {task} gives {env.observation_size}")
-    return env
-  task = task or policy.meta["task"]
-  env = build_high_env(policy.low_meta, low_params, task, backend, record=record,
-                       delta_max=policy.delta_max, **(hl_obs_layout(policy.meta) | task_overrides))
-  if env.observation_size != policy.meta["obs_size"]:
-    raise ValueError(f"the HL observes {policy.meta['obs_size']} numbers but {task} gives "
-                     f"{env.observation_size} (was the HL trained on another task?)")
+    env = card.make_env(task, backend, **task_overrides)
+  else:
+    env = policy.low_card.high_env(low_params, task, backend, record=record, delta_max=policy.delta_max,
+                                   **(card.obs_layout.task_options() | task_overrides))
+  card.check_env(env, task)
   return env
 
 
@@ -175,13 +153,11 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer) or \
       idx.min() < 0 or idx.max() >= n:
     raise ValueError(f"seeds={seeds!r}: pick seed indices of the policy, in 0..{n - 1}")
-  hidden = tuple(policy.meta["hidden_sizes"])
-  cfg = SACConfig(hidden_sizes=hidden, num_eval_episodes=episodes, total_env_steps=1000,
-                  steps_per_chunk=1000, batch_size=1, buffer_size=1, learning_starts=0)
+  act = policy.card.policy_fn()
 
   def one(params, low_params, k):
     env = _env_for(policy, task, backend, low_params, **task_overrides)
-    return make_train(_UniformActions(env) if policy.uniform_actions else env, cfg).evaluate(params, k)
+    return acting.evaluate(_UniformActions(env) if policy.uniform_actions else env, act, params, k, episodes)
 
   first_low = None if policy.low_params is None else jax.tree.map(lambda x: x[0], policy.low_params)
   check_memory(len(idx) * episodes * 4 * state_bytes(_env_for(policy, task, backend, first_low, **task_overrides)),
@@ -200,6 +176,7 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   summary = {f"{k}_mean": float(np.mean(v)) for k, v in per_seed.items()}
   summary |= {f"{k}_std": float(np.std(v)) for k, v in per_seed.items()}
   which = {"params": "uniform random actions" if policy.uniform_actions else policy.meta.get("params", "final")}  # every number says which parameters made it
+  which["metric"] = get_task(task or policy.meta["task"]).headline  # what a table reports
   if policy.low_meta is not None:
     which["low_params"] = policy.low_meta.get("params", "final")
   return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary)
@@ -216,7 +193,7 @@ def zero_shot_matrix(highs: dict[str, str | Path], lows: dict[str, str | Path], 
     for hname, hrun in highs.items():
       ev = evaluate(compose(hrun, lrun, which=which, low_which=low_which), task, episodes=episodes,
                     backend=backend, **kw)
-      metric = "success" if "success_mean" in ev else "return"
+      metric = ev["metric"]
       cells[(lname, hname)] = (ev[f"{metric}_mean"], ev[f"{metric}_std"], metric)
       used[(lname, hname)] = (ev["params"], ev["low_params"])
   return dict(task=task, rows=list(lows), cols=list(highs), cells=cells, params=used)
@@ -231,7 +208,7 @@ def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key
   params = jax.tree.map(lambda x: x[seed_index], policy.params)
   low = jax.tree.map(lambda x: x[seed_index], policy.low_params)
   env = _env_for(policy, task, backend, low, record=True, **task_overrides)
-  apply = low_policy_fn(policy.meta["hidden_sizes"], policy.meta["obs_size"], 2)
+  apply = policy.card.policy_fn()
 
   def run(params, key):
     s = env.reset(key)

@@ -19,10 +19,10 @@ HLs saved before ``target_q`` / ``log_alpha`` were kept fall back (with a warnin
 targets and alpha = ``config.init_alpha``.
 
 Seeds: HL seed ``i`` starts from A's HL seed ``i % n_A``. The frozen KL reference is A's seed
-``reference_seed`` (default 0) for every seed: the regulariser is a closure over one parameter set
-(``make_train`` has no per-seed plug-in state for it), so with several A seeds, seeds ``i > 0`` start
-from A's seed ``i`` but are pulled towards A's seed 0. A's observation normaliser, if it has one,
-travels with its policy and critics.
+``reference_seed`` (default 0) for every seed, kept per seed in the training state
+(:func:`hdt.agents.kl.kl_plugin`). Both the start from A and the KL term are plug-ins of one trainer
+(:mod:`hdt.agents.plugins`). A's observation normaliser, if it has one, travels with its policy and
+critics.
 """
 
 from __future__ import annotations
@@ -37,12 +37,15 @@ import numpy as np
 
 from hdt.agents import train as sac_train
 from hdt.agents import normalizer
-from hdt.agents.kl import MODES, linear_anneal, make_kl_regularizer
+from hdt.agents.kl import MODES, kl_plugin
+from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.pipeline import (LOW_PARAMS, RunResult, _hl_obs_meta, _run, env_meta, high_env_with_low,
-                                   hl_obs_layout, sac_extras, train_high)
+from hdt.transfer.card import PolicyCard, check_level
+from hdt.transfer.pipeline import LOW_PARAMS, high_env_with_low, sac_extras, train_high
+from hdt.transfer.runner import RunResult
+from hdt.transfer.runner import run_stage as _run  # (tests spy on finetune's _run)
 
 train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 
@@ -55,10 +58,7 @@ def load_high_sac(high: str | Path, which: str = "final"):
   of a saved HL, checked to be a high level; ``which``: its "final" parameters (as the authors'
   finetune scripts) or its "best" evaluation's."""
   params, metas = ckpt.load_all(high, which)
-  level = metas[0].get("level")
-  if level != "high":
-    raise ckpt.CheckpointError(f"{high} holds a {level!r}-level policy; finetune_high needs an HL "
-                               f"(from `hdt train high`) as high=")
+  check_level(metas[0].get("level"), high, "finetune")
   return params, metas
 
 
@@ -75,28 +75,44 @@ def _check_fits(name, loaded, fresh, high):
                                f"architecture or observation/action size)")
 
 
-def start_from_a(agent, a_params, pick, config, high, init: str = "sac"):
-  """``agent`` (a fresh vmapped SACState) with A's SAC of seeds ``pick`` put in: the policy, and with
-  ``init="sac"`` also both critics, target critics and log_alpha (fresh Adam states for all)."""
-  take = lambda tree: jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[pick], jnp.float32), tree)
+def start_from_a(agent, a_params, config, high, init: str = "sac"):
+  """``agent`` (one seed's fresh SACState) with A's SAC of one seed (``a_params``, no seed axis) put
+  in: the policy, and with ``init="sac"`` also both critics, target critics and log_alpha (fresh
+  Adam states for all)."""
+  f32 = lambda tree: jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), tree)
   pi_opt, q_opt, a_opt = make_optimizers(config)
-  policy = take(a_params["policy"])
+  policy = f32(a_params["policy"])
   _check_fits("policy", policy, agent.policy_params, high)
-  agent = agent.replace(policy_params=policy, policy_opt_state=jax.vmap(pi_opt.init)(policy))
+  agent = agent.replace(policy_params=policy, policy_opt_state=pi_opt.init(policy))
   if init == "policy":
     return agent
-  q = take(a_params["q"])
+  q = f32(a_params["q"])
   _check_fits("critic", q, agent.q_params, high)
+  target_q = f32(a_params["target_q"]) if "target_q" in a_params else q
+  _check_fits("target critic", target_q, agent.target_q_params, high)
+  log_alpha = f32(a_params["log_alpha"]) if "log_alpha" in a_params else agent.log_alpha
+  return agent.replace(q_params=q, target_q_params=target_q, q_opt_state=q_opt.init(q),
+                       log_alpha=jnp.reshape(log_alpha, agent.log_alpha.shape),
+                       alpha_opt_state=a_opt.init(log_alpha))
+
+
+def start_plugin(a_params, pick, seed_list, config, high, init: str = "sac") -> Plugin:
+  """A plug-in whose init starts seed ``seed_list[i]`` from A's seed ``pick[i]`` (:func:`start_from_a`).
+  Its init finds its seed by the key make_train hands it (:func:`sac_train.plugin_init_key`)."""
   missing = [k for k in ("target_q", "log_alpha") if k not in a_params]
-  if missing:
+  if init == "sac" and missing:
     print(f"warning: {high} has no saved {' or '.join(missing)} (an HL saved before they were kept): "
           f"finetuning starts from A's critics as targets and alpha={config.init_alpha}", file=sys.stderr)
-  target_q = take(a_params["target_q"]) if "target_q" in a_params else q
-  _check_fits("target critic", target_q, agent.target_q_params, high)
-  log_alpha = take(a_params["log_alpha"]) if "log_alpha" in a_params else agent.log_alpha
-  return agent.replace(q_params=q, target_q_params=target_q, q_opt_state=jax.vmap(q_opt.init)(q),
-                       log_alpha=jnp.reshape(log_alpha, agent.log_alpha.shape),
-                       alpha_opt_state=jax.vmap(a_opt.init)(log_alpha))
+  wanted = ("policy",) if init == "policy" else ("policy", "q", "target_q", "log_alpha")
+  per_seed = {k: jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[pick], jnp.float32), a_params[k])
+              for k in wanted if k in a_params}
+  keys = jax.vmap(lambda k: sac_train.plugin_init_key(k, 0))(sac_train.seed_keys(seed_list))
+
+  def init_fn(key, agent):
+    i = jnp.argmax(jnp.all(keys == key, axis=-1))
+    return start_from_a(agent, jax.tree.map(lambda x: x[i], per_seed), config, high, init), {}
+
+  return Plugin(name="start_from_a", init=init_fn)
 
 
 def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
@@ -142,29 +158,14 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
 
+  card_a = PolicyCard.from_json(am, high)
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params,
-                                   **(hl_obs_layout(am) | task_overrides))
-  fam = env.env.agent.family
-  if am.get("family") != fam:
-    raise ValueError(f"goal spaces do not match: the HL in {high} was trained for the {am.get('family')!r} "
-                     f"family, the LL in {low} belongs to {fam!r}; finetune an HL of the same family")
-  if am["obs_size"] != env.observation_size or am["action_size"] != env.action_size:
-    raise ckpt.CheckpointError(
-        f"the HL in {high} maps {am['obs_size']} observations to {am['action_size']} actions but the HL "
-        f"env of {task} over {low} has {env.observation_size} observations and {env.action_size} "
-        f"actions (was A's HL trained on another task or with other task options?)")
-
-  a_hidden = tuple(int(h) for h in am["hidden_sizes"])
+                                   **(card_a.obs_layout.task_options() | task_overrides))
   a_norm = normalizer.has(a_policy)  # A's observation normaliser travels with its policy
   if config is None:
-    config = configs.high_config(task, env.k, hidden_sizes=a_hidden, normalize_observations=a_norm)
-  if config.normalize_observations != a_norm:
-    raise ValueError(f"config.normalize_observations={config.normalize_observations} but the HL in {high} "
-                     f"was trained {'with' if a_norm else 'without'} an observation normaliser; the "
-                     f"finetuned policy must have A's layout")
-  if tuple(config.hidden_sizes) != a_hidden:
-    raise ValueError(f"config.hidden_sizes={config.hidden_sizes} but the HL in {high} has hidden sizes "
-                     f"{a_hidden}; the finetuned policy must have A's architecture")
+    config = configs.high_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm)
+  card_b = lambda config: PolicyCard.from_env(env, "high", config, low=low_rec, task_overrides=task_overrides)
+  card_a.compatible_with(card_b(config).replace(source=str(low)), "finetune")
   if lr is not None:
     config = configs.replace(config, actor_lr=lr, critic_lr=lr, alpha_lr=lr)
   if learning_starts is not None:
@@ -174,25 +175,18 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   n = len(seed_list)
   anneal_steps = anneal_frac * config.total_env_steps
 
-  plugins = {}
-  if kl > 0:
-    networks = sac_train.make_train(env, config).networks  # cheap: builds pure functions only
-    reference = jax.tree.map(lambda x: jnp.asarray(x[reference_seed], jnp.float32), a_policy)
-    plugins = dict(
-        networks=networks,
-        actor_regularizer=make_kl_regularizer(networks.policy_apply, reference, mode, mean_only),
-        actor_regularizer_schedule=linear_anneal(kl, anneal_steps),
-    )
-  trainer = sac_train.make_train(env, config, **plugins)
-
-  # Fresh SAC state per seed, then A's SAC (or policy) put in; fresh optimiser states and replay.
-  ts = sac_train.vmapped(trainer).init(sac_train.seed_keys(seed_list))
+  # One trainer: every seed starts from A's SAC (or policy), with fresh optimiser states and replay,
+  # and (kl > 0) keeps its own copy of the KL reference.
   pick = np.arange(n) % n_a
-  ts = ts.replace(agent=start_from_a(ts.agent, a_params, pick, config, high, init))
+  plugins = [start_plugin(a_params, pick, seed_list, config, high, init)]
+  networks = sac_train.make_networks(env, config)
+  if kl > 0:
+    reference = jax.tree.map(lambda x: x[reference_seed], a_policy)
+    plugins.append(kl_plugin(networks.policy_apply, reference, kl, anneal_steps, mode, mean_only))
+  trainer = sac_train.make_train(env, config, networks=networks, plugins=plugins)
+  ts = sac_train.vmapped(trainer).init(sac_train.seed_keys(seed_list))
 
-  meta = env_meta(env, "high", config, k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
-                  low=low_rec, task_overrides=task_overrides,
-                  hl_obs=_hl_obs_meta(env), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
+  meta = dict(card_b(config).to_json(), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
                                       params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
                                       reference_seed=reference_seed),

@@ -25,8 +25,18 @@ from hdt.envs.env import AgentTaskEnv
 
 LowPolicy = Callable[[Any, jax.Array], jax.Array]  # (params, obs_lo ++ (g - skill)) -> action
 
-# Per-LL-step metrics and how one HL step aggregates them ("success" is the one at the step's end).
-_REDUCE = {"fall": jnp.max, "waypoints": jnp.sum}
+
+def _reduce(how: str, values: jax.Array, active: jax.Array, last: jax.Array) -> jax.Array:
+  """One HL step's value of a per-LL-step metric, as the task's ``step_reduce`` says."""
+  if how == "last":
+    return values[last]
+  if how == "max":
+    return jnp.max(values)
+  if how == "sum":
+    return jnp.sum(values)
+  if how == "mean":  # over the LL steps taken
+    return jnp.sum(values * active) / jnp.maximum(active.sum(), 1)
+  raise ValueError(f"unknown HL-step reduction {how!r}; use mean, last, max or sum (Task.step_reduce)")
 
 
 def skill(obs_hi: jax.Array) -> jax.Array:
@@ -132,10 +142,8 @@ class HighLevelEnv:
     next_hi = inner.obs_hi
     inner = jax.tree.map(lambda n, o: jnp.where(done, n, o), self.env.reset(k_reset), inner)
     active = per["active"]
-    metrics = {k: _REDUCE.get(k, lambda x: jnp.sum(x * active) / jnp.maximum(active.sum(), 1))(v)
+    metrics = {k: _reduce(task.reduction(k), v, active, last)
                for k, v in per.items() if k not in ("active", "xy", "block", "reward")}
-    if "success" in per:
-      metrics["success"] = per["success"][last]  # judged at the end of the HL step
     metrics["ll_steps"] = active.sum()
     metrics["sub_goal_dist"] = jnp.linalg.norm(skill(next_hi) - goal)
     if self.record:

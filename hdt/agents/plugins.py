@@ -1,0 +1,78 @@
+"""The training plug-in protocol: what a method adds to SAC (a discriminator reward, a KL term to a
+reference policy, a start from another policy), passed to :func:`hdt.agents.train.make_train` as a
+list that it folds over. Every hook is optional.
+
+A plug-in's state is per seed: it lives in ``TrainState.aux``, a dict that merges the state dicts of
+all plug-ins (each plug-in owns its keys; two plug-ins may not share a key), and each hook sees only
+its own plug-in's keys.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, Sequence
+
+import jax
+
+State = dict  # a plug-in's state: a dict of pytrees (its keys in TrainState.aux)
+
+
+@dataclasses.dataclass(frozen=True)
+class Plugin:
+  """One method's hooks into SAC training (all optional, no-ops when None).
+
+  init(key, agent) -> (agent, state): the plug-in's initial state; it may also set the starting
+    SACState (e.g. another policy's parameters). Called once per seed, after the SAC init.
+  update(state, transitions, env_steps, key) -> (state, metrics): once per training step, after the
+    new transitions were collected (metrics are averaged over the chunk).
+  reward(state, batch) -> rewards: recomputes a sampled batch's rewards before the critic target.
+  regularizer(state, policy_params, obs) -> scalar: added to the actor loss, times ``schedule``.
+  schedule(env_steps) -> weight of the regulariser (default 1).
+  transition_extras(env_state, next_env_state) -> pytree stored with each transition.
+  """
+
+  name: str
+  init: Callable[[jax.Array, Any], tuple[Any, State]] | None = None
+  update: Callable[[State, Any, jax.Array, jax.Array], tuple[State, dict]] | None = None
+  reward: Callable[[State, Any], jax.Array] | None = None
+  regularizer: Callable[[State, Any, jax.Array], jax.Array] | None = None
+  schedule: Callable[[jax.Array], jax.Array] | None = None
+  transition_extras: Callable[[Any, Any], Any] | None = None
+
+
+def from_callables(actor_regularizer=None, actor_regularizer_schedule=None, reward_fn=None, aux_init=None,
+                   aux_update=None, transition_extras=None, name: str = "custom") -> Plugin | None:
+  """The plug-in of make_train's keyword callables (``aux_init(key)`` state; a regulariser without
+  state), or None when none is given."""
+  given = (actor_regularizer, actor_regularizer_schedule, reward_fn, aux_init, aux_update, transition_extras)
+  if all(f is None for f in given):
+    return None
+  return Plugin(
+      name=getattr(actor_regularizer, "metric_name", name),
+      init=None if aux_init is None else (lambda key, agent: (agent, aux_init(key))),
+      update=aux_update,
+      reward=reward_fn,
+      regularizer=None if actor_regularizer is None else (lambda state, params, obs: actor_regularizer(params, obs)),
+      schedule=actor_regularizer_schedule,
+      transition_extras=transition_extras,
+  )
+
+
+def check(plugins: Sequence[Plugin]) -> tuple[Plugin, ...]:
+  """``plugins`` as a tuple, refused in one line where they cannot be combined."""
+  plugins = tuple(plugins)
+  for p in plugins:
+    if not isinstance(p, Plugin):
+      raise TypeError(f"plugins: expected hdt.agents.plugins.Plugin objects, got {type(p).__name__}")
+  names = [p.name for p in plugins]
+  if len(set(names)) != len(names):
+    raise ValueError(f"plugins {names}: each plug-in needs its own name")
+  for hook in ("regularizer", "transition_extras"):
+    users = [p.name for p in plugins if getattr(p, hook) is not None]
+    if len(users) > 1:
+      raise ValueError(f"plugins {users} each define {hook}; at most one plug-in may (combine them into one)")
+  return plugins
+
+
+def own(aux: dict, keys: Sequence[str]) -> State:
+  return {k: aux[k] for k in keys}

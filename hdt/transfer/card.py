@@ -1,0 +1,330 @@
+"""The hand-off card: what one trained policy promises to whoever loads it.
+
+A :class:`PolicyCard` is frozen and typed: level, agent, task, family and goal space, the goal
+dimension, k and delta_max, the observation sizes and the HL observation layout, the network and
+normaliser spec, and the env / task options it was trained with. ``meta.json`` (top level and per
+seed) is its JSON serialisation (:meth:`PolicyCard.to_json`); what the card does not type (the SAC
+config, provenance such as ``low`` / ``aligned_to`` / ``finetuned_from``, the seed and checkpoint
+fields) is kept verbatim in ``extra`` so that a round trip writes the same file.
+
+Every hand-off between levels is checked by :meth:`PolicyCard.compatible_with`, the one place that
+words those errors. The card builds its env (:meth:`PolicyCard.make_env`, :meth:`PolicyCard.high_env`)
+and its deterministic policy function (:meth:`PolicyCard.policy_fn`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from hdt.agents import networks as nets
+from hdt.envs import make
+from hdt.envs.robot import check_recorded, robot_record
+from hdt.envs.spec import AgentSpec
+from hdt.envs.tasks import TASKS
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer.hierarchy import HighLevelEnv
+
+# Version of the card's JSON layout. Runs written before the field existed have this layout (1).
+CARD_FORMAT = 1
+FORMAT_KEY = "card_format"
+
+GOAL_DIM = 2  # both families' goal spaces are planar (torso / end-effector xy)
+GOAL_SPACE_NAMES = {"nav": "navigation (torso xy)", "manip": "manipulation (end-effector xy)"}
+
+# What a policy's card must hold to be run (checked, so an edited file is one clear line).
+REQUIRED = {"level": str, "agent": str, "task": str, "family": str, "obs_size": int, "action_size": int,
+            "hidden_sizes": list, "delta_max": (int, float), "k": int}
+# The keys the card types; everything else of meta.json goes to ``extra`` untouched.
+_TYPED = ("level", "agent", "task", "family", "goal_space", "k", "delta_max", "obs_size", "action_size",
+          "obs_lo_size", "obs_hi_size", "hidden_sizes", "hl_obs", "hl_horizon", "env_overrides",
+          "task_overrides")
+USES = ("low", "compose", "finetune", "align")
+
+
+@dataclasses.dataclass(frozen=True)
+class ObsLayout:
+  """How the HL policy observes obs_hi (:class:`hdt.envs.tasks.Task` ``hl_relative`` / ``hl_absolute``)."""
+
+  hl_relative: tuple[int, ...] = ()
+  hl_absolute: bool = True
+
+  def task_options(self) -> dict:
+    return {"hl_relative": self.hl_relative, "hl_absolute": self.hl_absolute}
+
+  def to_json(self) -> dict:
+    return {"hl_relative": [int(i) for i in self.hl_relative], "hl_absolute": bool(self.hl_absolute)}
+
+  @classmethod
+  def from_json(cls, d: Mapping | None) -> "ObsLayout":
+    d = d or {}  # runs that predate the field observed plain obs_hi
+    return cls(tuple(int(i) for i in d.get("hl_relative", ())), bool(d.get("hl_absolute", True)))
+
+
+def low_policy_fn(hidden_sizes, obs_size: int, action_size: int) -> Callable:
+  """Deterministic action of a saved SAC policy: tanh of the pre-tanh mean."""
+  net = nets.make_sac_networks(obs_size, action_size, tuple(hidden_sizes))
+  return lambda params, obs: nets.deterministic_action(net.policy_apply(params, obs)[0])
+
+
+def _frozen(d: Mapping | None) -> Mapping:
+  return MappingProxyType(dict(d or {}))
+
+
+@dataclasses.dataclass(frozen=True)
+class PolicyCard:
+  """One trained policy's hand-off contract (see the module docstring)."""
+
+  level: str  # "low", "high" or "full"
+  agent: str  # registry name, or the path of a robot file
+  task: str
+  family: str  # "nav" or "manip"
+  goal_space: str | None
+  k: int  # LL steps per HL decision
+  delta_max: float  # half-width of the sub-goal box (goal-space units)
+  obs_size: int
+  action_size: int
+  hidden_sizes: tuple[int, ...]
+  obs_lo_size: int | None = None
+  obs_hi_size: int | None = None
+  hl_obs: ObsLayout | None = None  # set for an HL
+  hl_horizon: int | None = None
+  env_overrides: Mapping | None = None
+  task_overrides: Mapping | None = None
+  extra: Mapping = dataclasses.field(default_factory=dict)  # verbatim rest of meta.json
+  source: str | None = dataclasses.field(default=None, compare=False)  # where it was read, for messages
+
+  def __post_init__(self):
+    for name in ("env_overrides", "task_overrides"):
+      if getattr(self, name) is not None:
+        object.__setattr__(self, name, _frozen(getattr(self, name)))
+    object.__setattr__(self, "extra", _frozen(self.extra))
+    object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
+
+  # --- what readers need ------------------------------------------------------------------------
+  @property
+  def goal_dim(self) -> int:
+    return GOAL_DIM
+
+  @property
+  def sac(self) -> dict:
+    return dict(self.extra.get("sac") or {})
+
+  @property
+  def normalize_observations(self) -> bool:
+    return bool(self.sac.get("normalize_observations", False))
+
+  @property
+  def obs_layout(self) -> ObsLayout:
+    return self.hl_obs or ObsLayout()
+
+  @property
+  def morphology(self) -> dict:
+    """The env options that change the robot (they carry over to any task the LL is used on)."""
+    agent_fields = {f.name for f in dataclasses.fields(AgentSpec)}
+    return {k: v for k, v in (self.env_overrides or {}).items() if k in agent_fields}
+
+  # --- JSON -------------------------------------------------------------------------------------
+  def to_json(self) -> dict:
+    """``meta.json``: the typed fields, the verbatim ``extra`` and the card format."""
+    out = dict(self.extra)
+    for name in _TYPED:
+      v = getattr(self, name)
+      if v is None:  # absent from the file it came from
+        continue
+      if name == "hl_obs":
+        v = v.to_json()
+      elif name == "hidden_sizes":
+        v = list(v)
+      elif isinstance(v, Mapping):
+        v = dict(v)
+      out[name] = v
+    return out | {FORMAT_KEY: CARD_FORMAT}
+
+  @classmethod
+  def from_json(cls, meta: Mapping, source: str | Path | None = None) -> "PolicyCard":
+    """The card of ``meta`` (a meta.json's content); refuses another card format or missing fields
+    with one line naming ``source``."""
+    where = source if source is not None else "the run metadata"
+    fmt = meta.get(FORMAT_KEY, CARD_FORMAT)  # runs before the field have format 1
+    if fmt != CARD_FORMAT:
+      fix = ("upgrade hdt to read it" if isinstance(fmt, int) and not isinstance(fmt, bool) and fmt > CARD_FORMAT
+             else "re-train it, or restore the file from a backup")
+      raise ckpt.CheckpointError(f"checkpoint metadata in {where} has card format {fmt!r} but this hdt reads "
+                                 f"card format {CARD_FORMAT}: {fix}")
+    ckpt.require(dict(meta), REQUIRED, where)
+    extra = {k: v for k, v in meta.items() if k not in _TYPED and k != FORMAT_KEY}
+    get = meta.get
+    return cls(level=meta["level"], agent=meta["agent"], task=meta["task"], family=meta["family"],
+               goal_space=get("goal_space"), k=meta["k"], delta_max=meta["delta_max"],
+               obs_size=meta["obs_size"], action_size=meta["action_size"], hidden_sizes=meta["hidden_sizes"],
+               obs_lo_size=get("obs_lo_size"), obs_hi_size=get("obs_hi_size"),
+               hl_obs=None if get("hl_obs") is None else ObsLayout.from_json(get("hl_obs")),
+               hl_horizon=get("hl_horizon"), env_overrides=get("env_overrides"),
+               task_overrides=get("task_overrides"), extra=extra,
+               source=None if source is None else str(source))
+
+  @classmethod
+  def from_env(cls, env, level: str, config, **extra) -> "PolicyCard":
+    """The card of a policy about to be trained on ``env`` (an agent-task env or an HL env) with the
+    SAC ``config``; ``extra``: provenance and options (env_overrides, low, hl_obs, ...)."""
+    inner = env.env if isinstance(env, HighLevelEnv) else env
+    agent, task = inner.agent, inner.task
+    meta = dict(level=level, agent=agent.name, task=task.name, family=agent.family,
+                goal_space=f"{agent.family}:{task.point_sensor}", delta_max=agent.delta_max, k=agent.k,
+                obs_size=int(env.observation_size), action_size=int(env.action_size),
+                obs_lo_size=int(env.obs_lo_size), obs_hi_size=int(env.obs_hi_size),
+                hidden_sizes=list(config.hidden_sizes), sac=dataclasses.asdict(config))
+    if isinstance(env, HighLevelEnv):
+      meta |= dict(k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
+                   hl_obs=ObsLayout(tuple(task.hl_relative), task.hl_absolute).to_json())
+    # a robot file: its path is the agent, and its sha256
+    return cls.from_json(meta | robot_record(agent) | extra)
+
+  def replace(self, **kw) -> "PolicyCard":
+    return dataclasses.replace(self, **kw)
+
+  # --- what it builds ---------------------------------------------------------------------------
+  def policy_fn(self) -> Callable:
+    """``fn(params, obs) -> action``: the deterministic action of this card's policy network."""
+    return low_policy_fn(self.hidden_sizes, self.obs_size, self.action_size)
+
+  def make_env(self, task: str | None = None, backend: str = "auto", **overrides):
+    """The env of a flat policy (an LL on reach, or a Full policy) on ``task`` (default: its own),
+    with the options it was trained with."""
+    check_recorded(self.to_json())
+    return make(self.agent, task or self.task, backend=backend, **dict(self.env_overrides or {}) | overrides)
+
+  def high_env(self, low_params, task: str, backend="auto", k=None, hl_horizon=None, record=False,
+               delta_max=None, **task_overrides) -> HighLevelEnv:
+    """The HL env of ``task`` over this LL (``low_params``: its policy parameters). The inner env's
+    own time limit is disabled: the HL env counts HL steps. Only the LL's morphology options carry
+    over; its reach-task options (terrain=...) do not belong to the HL task."""
+    if task not in TASKS:
+      raise ValueError(f"unknown task {task!r}; valid tasks: {', '.join(TASKS)}")
+    # hl_horizon may come as a task override too; it never reaches the inner env
+    overridden = task_overrides.pop("hl_horizon", None)
+    hl_horizon = next((h for h in (hl_horizon, overridden) if h is not None), TASKS[task]().hl_horizon)
+    check_recorded(self.to_json())  # a robot file must still be there, unchanged
+    inner = make(self.agent, task, backend=backend, hl_horizon=10**6, **self.morphology | task_overrides)
+    if inner.obs_lo_size + self.goal_dim != self.obs_size:
+      raise ckpt.CheckpointError(
+          f"the LL observes {self.obs_size} numbers but {self.agent} on {task} gives "
+          f"{inner.obs_lo_size} + {self.goal_dim}: was it trained with other options (e.g. rangefinders for steps)?")
+    return HighLevelEnv(inner, self.policy_fn(), low_params, k=self.k if k is None else k,
+                        hl_horizon=hl_horizon, record=record,
+                        delta_max=self.delta_max if delta_max is None else delta_max)
+
+  # --- hand-off checks --------------------------------------------------------------------------
+  def compatible_with(self, other: "PolicyCard | None", use: str, box: str = "refuse") -> float:
+    """Whether this card can be handed to ``other`` for ``use`` (one of :data:`USES`); raises the
+    one-line error of the first mismatch, else returns the sub-goal box to use (delta_max).
+
+    "low": this card must be a usable LL (``other`` unused). "compose": this HL over the LL ``other``
+    (``box``: "refuse", "scale" or "keep" goal boxes that differ). "finetune": this HL (A's) as the
+    start of the run described by ``other`` (B's HL card, built from its env and config); ``other``
+    None checks only that this is an HL. "align": the LL ``other`` (B) aligned to this LL (A).
+    """
+    me = self.source
+    if use in ("low", "compose", "finetune"):
+      check_level(self.level, me, use)
+    if use == "low":
+      if self.k <= 0 or not np.isfinite(self.delta_max) or self.delta_max <= 0:
+        raise ckpt.CheckpointError(f"the LL in {me} was trained with k={self.k}, delta_max={self.delta_max}; "
+                                   f"an HL needs both positive: retrain the LL without such --set values")
+      return float(self.delta_max)
+    if use == "compose":
+      if other.level != "low":
+        raise ckpt.CheckpointError(f"{other.source} holds a {other.level!r}-level policy; compose needs an LL "
+                                   f"(from `hdt train low`) as low=")
+      if self.family != other.family:
+        raise ValueError(
+            f"goal spaces do not match: the HL in {me} emits {GOAL_SPACE_NAMES[self.family]} sub-goals, the "
+            f"LL in {other.source} ({other.agent}) reaches {GOAL_SPACE_NAMES[other.family]} goals; pair an HL "
+            f"and an LL of the same family")
+      if not np.isclose(self.delta_max, other.delta_max):
+        if box == "scale":
+          return float(other.delta_max)
+        if box != "keep":
+          raise ValueError(f"goal boxes differ: HL sub-goals span +-{self.delta_max} but the LL was trained "
+                           f"on +-{other.delta_max}; pass box='scale' to map the HL's box onto the LL's, or "
+                           f"box='keep' to keep the HL's box in metres")
+      return self.delta_max
+    if use == "finetune":
+      if other is None:
+        return self.delta_max
+      if self.family != other.family:
+        raise ValueError(f"goal spaces do not match: the HL in {me} was trained for the {self.family!r} "
+                         f"family, the LL in {other.source} belongs to {other.family!r}; finetune an HL of "
+                         f"the same family")
+      if self.obs_size != other.obs_size or self.action_size != other.action_size:
+        raise ckpt.CheckpointError(
+            f"the HL in {me} maps {self.obs_size} observations to {self.action_size} actions but the HL "
+            f"env of {other.task} over {other.source} has {other.obs_size} observations and {other.action_size} "
+            f"actions (was A's HL trained on another task or with other task options?)")
+      if other.normalize_observations != self.normalizer:
+        raise ValueError(f"config.normalize_observations={other.normalize_observations} but the HL in {me} "
+                         f"was trained {'with' if self.normalizer else 'without'} an observation normaliser; "
+                         f"the finetuned policy must have A's layout")
+      if other.hidden_sizes != self.hidden_sizes:
+        raise ValueError(f"config.hidden_sizes={other.hidden_sizes} but the HL in {me} has hidden sizes "
+                         f"{self.hidden_sizes}; the finetuned policy must have A's architecture")
+      return other.delta_max
+    if use == "align":
+      if self.family != other.family or self.goal_space != other.goal_space:
+        raise ValueError(
+            f"cannot align {other.agent!r} to the LL in {me} ({self.agent!r}): goal spaces "
+            f"differ ({other.goal_space} vs {self.goal_space}); A and B must both be nav or "
+            f"both manip agents")
+      if other.obs_size < self.goal_dim or self.obs_size < self.goal_dim:
+        raise ckpt.CheckpointError(f"LL observations must end with the {self.goal_dim} goal-space entries g - s")
+      return other.delta_max
+    raise ValueError(f"use={use!r}: one of {', '.join(USES)}")
+
+  @property
+  def normalizer(self) -> bool:
+    """Whether the saved policy carries an observation normaliser (recorded by the SAC config)."""
+    return self.normalize_observations
+
+  def check_env(self, env, task: str) -> None:
+    """Refuses an env whose observation does not fit this policy (evaluation on another task)."""
+    if env.observation_size == self.obs_size:
+      return
+    if self.level == "high":
+      raise ValueError(f"the HL observes {self.obs_size} numbers but {task} gives "
+                       f"{env.observation_size} (was the HL trained on another task?)")
+    raise ValueError(f"the policy observes {self.obs_size} numbers, {self.agent} "
+                     f"on {task} gives {env.observation_size}")
+
+
+def check_level(level, source, use: str) -> None:
+  """The level a hand-off needs (checked first, so that a policy of the wrong level says so rather
+  than what fields it lacks); part of :meth:`PolicyCard.compatible_with`."""
+  if use == "low" and level != "low":
+    raise ckpt.CheckpointError(f"{source} holds a {level!r}-level policy where a low level "
+                               f"was expected (train one with `hdt train low --agent ...`)")
+  if use in ("compose", "finetune") and level != "high":
+    who = "compose" if use == "compose" else "finetune_high"
+    raise ckpt.CheckpointError(f"{source} holds a {level!r}-level policy; {who} needs an HL "
+                               f"(from `hdt train high`) as high=")
+
+
+def load_card(run: str | Path, seed_index: int = 0, which: str = "final"):
+  """(params, card) of one seed of a saved run."""
+  params, meta = ckpt.load(run, seed_index, which)
+  return params, PolicyCard.from_json(meta, Path(run))
+
+
+def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):
+  """(params, meta, policy_fn) of a saved LL, checked to be a low level; ``which``: its "final"
+  parameters or its "best" evaluation's (see :func:`ckpt.load`, ``meta["params"]`` says which)."""
+  params, meta = ckpt.load(low, seed_index, which)
+  check_level(meta.get("level"), low, "low")
+  card = PolicyCard.from_json(meta, Path(low) / f"seed_{seed_index}" / "meta.json").replace(source=str(low))
+  card.compatible_with(None, "low")
+  check_recorded(meta)
+  return params, meta, card.policy_fn()

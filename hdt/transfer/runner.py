@@ -1,0 +1,352 @@
+"""The one runner of every training stage: claims the run directory, trains a vmapped seed sweep
+with resumable atomic saves and progress, and writes config.json, meta.json (the run's
+:class:`hdt.transfer.card.PolicyCard`), metrics.csv, TensorBoard events and seed_<i>/ checkpoints."""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import numpy as np
+
+from hdt.agents import train as sac_train
+from hdt.agents.sac import SACConfig
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import rundir
+from hdt.transfer.card import FORMAT_KEY, PolicyCard
+
+
+@dataclasses.dataclass
+class RunResult:
+  run_dir: Path | None
+  params: Any  # {"policy", "q"} with a leading seed axis
+  history: dict[str, np.ndarray]  # leading seed axis
+  meta: dict  # the run's card as JSON (hdt.transfer.card.PolicyCard.to_json)
+  best: dict | None = None  # best periodic evaluation per seed (hdt.agents.train.update_best)
+
+  @property
+  def card(self) -> PolicyCard:
+    return PolicyCard.from_json(self.meta, self.run_dir)
+
+
+
+def print_progress(total: int, quiet: bool = False, label: str = "") -> Callable[[int, dict], None]:
+  """A one-line progress report per chunk: steps, steps/s, ETA and the latest evaluation."""
+  t0 = time.perf_counter()
+
+  def progress(step, metrics):
+    if quiet:
+      return
+    dt = time.perf_counter() - t0
+    rate = step / max(dt, 1e-9)
+    evals = {k[5:]: float(np.mean(v)) for k, v in metrics.items()
+             if k in ("eval/return", "eval/success_max", "eval/goal_dist")}
+    ev = " ".join(f"{k}={v:.3g}" for k, v in evals.items())
+    frac = step / total
+    bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
+    print(f"{label} [{bar}] {step}/{total} steps {rate:.0f}/s ETA {(total - step) / max(rate, 1e-9):.0f}s {ev}",
+          file=sys.stderr, flush=True)
+  return progress
+
+
+def run_stage(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str, resume=False,
+              save_every: int | None = None, save_extra: Callable[[Any], dict] | None = None,
+              overwrite: bool = False, progress_printer: Callable | None = None, **plugins) -> RunResult:
+  """Trains, saving the resumable state to ``out/state`` every ``save_every`` env steps and at the
+  end, then writes the run directory. Every argument is checked before anything is written, and
+  ``out`` is claimed (hdt.transfer.rundir: owned by hdt, locked, replaced whole with ``overwrite``)
+  before anything is compiled. save_extra(final TrainState) -> {name: pytree with a seed axis}
+  saved next to "policy" and "q" in every seed's checkpoint (e.g. the discriminator of an aligned LL).
+  progress_printer(total, quiet, label) -> progress_fn(step, metrics); default :func:`print_progress`."""
+  return run_points(env, config, seeds, [({}, out)], meta, quiet, label, resume, save_every, save_extra,
+                    overwrite, progress_printer, **plugins)[0]
+
+
+def run_points(env, config: SACConfig, seeds, points: list, meta: dict, quiet: bool, label: str,
+               resume=False, save_every: int | None = None, save_extra: Callable[[Any], dict] | None = None,
+               overwrite: bool = False, progress_printer: Callable | None = None,
+               **plugins) -> list[RunResult]:
+  """:func:`run_stage` for grid points ``[(hyper, out)]`` (hyper: values of SWEEPABLE fields replacing
+  ``config``'s) trained together as one vmapped program (``hdt.agents.train.run(hyper=...)``); each
+  point writes its own run directory as if trained alone. Only a single point can resume."""
+  grid = {k: [h[k] for h, _ in points] for k in points[0][0]}
+  configs = [dataclasses.replace(config, **h) for h, _ in points]
+  check_train_memory(env, config, seeds, len(points))
+  seeds = sac_train.seed_list(seeds)
+  if resume is not False and len(points) > 1:
+    raise ValueError("resume continues one run: resume the grid points one at a time")
+  outputs = [_outputs(out, resume, overwrite) for _, out in points]
+  source = outputs[0][1]
+  save_steps = _save_steps(config, save_every)
+  ts, trainer = plugins.pop("initial_state", None), plugins.pop("trainer", None)
+  # Compiled programs are saved and reloaded (hdt.cache.compiled) when the key below names all they
+  # depend on: not with plug-ins or a caller's trainer (functions no key can name).
+  backend = getattr(env, "backend", None) or getattr(getattr(env, "env", None), "backend", None)
+  cache_key = None if plugins or trainer or not backend else json.dumps(
+      dict(env=type(env).__name__, backend=backend, meta=meta, config=dataclasses.asdict(config)),
+      sort_keys=True, default=str)
+  trainer = trainer or sac_train.make_train(env, config, **plugins)
+  infos = [dict(config=dataclasses.asdict(c), meta=dict(meta, sac=dataclasses.asdict(c)) if grid else meta,
+                seeds=seeds) for c in configs]
+  if source is not None:
+    _check_resumable(source, infos[0])
+  S = len(seeds)
+  part = (lambda tree, p: tree) if len(points) == 1 else (
+      lambda tree, p: jax.tree.map(lambda x: x[p * S:(p + 1) * S], tree))
+  with contextlib.ExitStack() as claims:
+    for run_dir, _ in outputs:
+      if run_dir is not None:
+        claims.enter_context(rundir.claim(run_dir, resume=source is not None and _same(source, run_dir),
+                                          overwrite=overwrite))
+    run_dir = outputs[0][0]
+    history = best = None
+    if run_dir is not None and source is not None and _same(source, run_dir):
+      ckpt.settle_state(run_dir)
+    if source is not None:
+      ts, history, best = _resume(source, trainer, infos[0])
+
+    def on_chunk(step, ts, hist, best):
+      if any(d is not None for d, _ in outputs) and (
+          step // save_steps > (step - config.env_steps_per_chunk) // save_steps or step == config.total_env_steps):
+        hist = {k: np.stack(v, axis=1) for k, v in hist.items()}
+        for p, (run_dir, _) in enumerate(outputs):
+          if run_dir is not None:
+            with rundir.deferred_interrupt():
+              ckpt.save_state(run_dir, part(ts, p), part(hist, p), dict(infos[p], env_steps=step),
+                              None if best is None else part(best, p))
+
+    progress = (progress_printer or print_progress)(config.total_env_steps, quiet, label)
+    try:
+      with counted_mujoco_warnings(quiet) as warned:
+        res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
+                            initial_history=history, initial_best=best, eval_at_start=history is None,
+                            on_chunk=on_chunk, cache_key=cache_key, **({"hyper": grid} if grid else {}))
+    except sac_train.TrainingDiverged as e:
+      kept = [d for d, _ in outputs if d is not None and ckpt.has_state(d)]
+      note = (f" The last good training state is kept in {ckpt.state_dir(kept[0])}." if len(kept) == 1 else
+              " The last good training states are kept in each run directory's state/." if kept else "")
+      note += f" MuJoCo reported {len(warned)} simulation warning(s) before." if warned else ""
+      raise sac_train.TrainingDiverged(str(e) + note, e.term, e.env_step, e.seeds) from None
+    params = dict(res.params, **(save_extra(res.state) if save_extra else {}))
+    results = []
+    for p, (run_dir, _) in enumerate(outputs):
+      res_p = sac_train.RunResult(part(params, p), part(res.history, p), part(res.state, p),
+                                  None if res.best is None else part(res.best, p))
+      if run_dir is not None:
+        with rundir.deferred_interrupt():  # a Ctrl-C here would leave some seeds unwritten
+          _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p)
+      results.append(RunResult(run_dir, res_p.params, res_p.history, infos[p]["meta"], res_p.best))
+  return results
+
+
+@contextlib.contextmanager
+def counted_mujoco_warnings(quiet: bool = False):
+  """MuJoCo prints each instability warning ("Nan, Inf or huge value in QACC ...") once per env
+  step, hundreds of lines before hdt's NaN guard stops a diverging run: inside the block they are
+  counted instead (yields the list of messages), and summed up in one line at the end."""
+  import mujoco
+  seen: list[str] = []
+  previous = mujoco.get_mju_user_warning()
+  mujoco.set_mju_user_warning(seen.append)  # also called from the native backend's threads
+  try:
+    yield seen
+  finally:
+    mujoco.set_mju_user_warning(previous)
+    if seen and not quiet:
+      print(f"MuJoCo reported {len(seen)} simulation warning(s), first: {' '.join(seen[0].split())}",
+            file=sys.stderr, flush=True)
+
+
+def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params, res) -> None:
+  """The run's outputs; meta.json last, so a run directory with meta.json is complete."""
+  unit = "HL decisions" if meta.get("level") == "high" else "env steps"  # what total_env_steps counts
+  ckpt.write_json_atomic(run_dir / "config.json", dict(dataclasses.asdict(config), budget_unit=unit))
+  for i, s in enumerate(seeds):
+    ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], params), dict(meta, seed=s),
+              best=_seed_best(res.best, i))
+  write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
+  write_tensorboard(run_dir / "tb", res.history, seeds)
+  ckpt.write_json_atomic(run_dir / "meta.json", dict(meta, seeds=seeds))
+
+
+def _same(a: Path, b: Path) -> bool:
+  return Path(os.path.abspath(a)) == Path(os.path.abspath(b))
+
+
+def _available_bytes() -> int:
+  try:
+    with open("/proc/meminfo") as f:
+      return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+  except (OSError, StopIteration, ValueError):
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def _tree_bytes(tree) -> int:
+  return sum(int(np.prod(x.shape)) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(tree))
+
+
+def state_bytes(env) -> int:
+  """Bytes of one env state (from its shapes, nothing allocated)."""
+  return _tree_bytes(jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), np.uint32)))
+
+
+def check_memory(need: int, what: str, fix: str) -> None:
+  """Refuses (one line) a request whose estimated size ``need`` exceeds 90% of available memory."""
+  avail = _available_bytes()
+  if need > 0.9 * avail:
+    raise ValueError(f"{what} needs about {need / 2**30:.3g} GiB but {avail / 2**30:.3g} GiB of memory are "
+                     f"available: {fix}")
+
+
+def check_train_memory(env, config: SACConfig, seeds, points: int = 1) -> None:
+  """Estimate: per seed (and grid point), the replay buffer (obs, next obs, action, reward, discount
+  in float32) and the parallel training and evaluation env states."""
+  n = seeds if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool) else \
+      (len(seeds) if hasattr(seeds, "__len__") else 1)
+  if n <= 0:
+    return  # seed_list explains
+  n *= points
+  transition = 4 * (2 * env.observation_size + env.action_size + 2)
+  per_seed = (config.buffer_size * transition
+              + (config.num_envs + config.num_eval_episodes) * state_bytes(env))
+  check_memory(n * per_seed, f"training {n} seeds (replay buffer of {config.buffer_size} and "
+               f"{config.num_envs} + {config.num_eval_episodes} env states per seed)",
+               "lower the number of seeds, buffer_size, num_envs or num_eval_episodes")
+
+
+def _seed_best(best: dict | None, i: int) -> tuple[dict, dict] | None:
+  """(params, info) of seed ``i``'s best evaluation for :func:`ckpt.save`, None if it has none."""
+  if best is None or best["env_steps"][i] < 0:
+    return None
+  info = dict(env_steps=int(best["env_steps"][i]), eval_return=float(best["return"][i]),
+              criterion=f"highest mean {sac_train.BEST_CRITERION} over the periodic evaluations")
+  return {k: jax.tree.map(lambda x: x[i], best[k]) for k in ("policy", "q")}, info
+
+
+
+def _outputs(out, resume, overwrite=False) -> tuple[Path | None, Path | None]:
+  """(run dir to write or None, run dir to resume from or None), checked without touching disk."""
+  if resume is not False and overwrite:
+    raise ValueError("resume and overwrite exclude each other: resume continues the run in out=, "
+                     "overwrite replaces it")
+  if not isinstance(resume, (bool, str, Path)):
+    raise ValueError(f"resume={resume!r}: pass True (resume from out=), a run directory, or False")
+  if resume is not False and resume is not True:
+    source = Path(resume)
+    out = source if out is None else out
+  else:
+    source = None
+    if resume:
+      if out is None:
+        raise ValueError("resume=True needs out=: the run directory of the interrupted run")
+      source = Path(out)
+  if source is not None:
+    ckpt.load_state_info(source)  # exists, readable, of this format
+  if out is not None:
+    same = source is not None and _same(source, out)
+    out = rundir.check_claimable(out, resume=same, overwrite=overwrite)
+  return out, source
+
+
+def _save_steps(config: SACConfig, save_every) -> int:
+  """Env steps between saves of the resumable state; default about a tenth of the run."""
+  if save_every is None:
+    return max(1, config.num_chunks // 10) * config.env_steps_per_chunk
+  if isinstance(save_every, bool) or not isinstance(save_every, (int, np.integer)) or save_every <= 0:
+    raise ValueError(f"save_every={save_every!r}: give a positive number of env steps between saves of "
+                     f"the resumable state (it is saved at the first chunk end past each multiple), "
+                     f"or None for about every 10% of training")
+  return int(save_every)
+
+
+def _check_resumable(source: Path, info: dict) -> None:
+  """Refuses (reading only) to resume ``source`` if its run was started with another configuration,
+  run metadata or seeds than ``info`` describes, or a checkpoint it depends on changed since."""
+  saved = ckpt.load_state_info(source)
+  for key, kind in (("config", dict), ("meta", dict), ("seeds", list)):
+    if not isinstance(saved.get(key), kind):
+      raise ckpt.CheckpointError(f"the training state in {source} has {key}={saved.get(key)!r}: state.json was "
+                                 f"edited or damaged; restore it, or start over with --overwrite")
+  # meta["sac"] repeats the config; a state saved before the card format was recorded has format 1
+  no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m not in ("sac", FORMAT_KEY)} if k == "meta"
+                          else d.get(k)) for k in info}
+  diffs = ckpt.differences(no_sac(saved), no_sac(info))
+  changed = [d for d in diffs if d.split(":")[0].endswith(".sha256")]
+  if changed:
+    raise ckpt.CheckpointError(
+        f"cannot resume {source}: a checkpoint it depends on changed since it started "
+        f"({changed[0].split(':')[0].removeprefix('meta.').removesuffix('.sha256')} content hash differs; "
+        f"was it retrained?); "
+        f"restore that checkpoint, or start a new run with --overwrite (overwrite=True)")
+  if diffs:
+    raise ckpt.CheckpointError(
+        f"cannot resume from {source}: the saved run differs from the requested one in "
+        f"{'; '.join(diffs[:6])}{' ...' if len(diffs) > 6 else ''}. Resume with the saved settings "
+        f"(see {ckpt.state_dir(source) / 'state.json'}) or start a new run in another out= directory")
+
+
+def _resume(source: Path, trainer, info: dict):
+  """The saved TrainState (device arrays), history and best record of ``source``."""
+  template = jax.eval_shape(sac_train.vmapped(trainer).init,
+                            sac_train.seed_keys(info["seeds"]))
+  # a state saved before best-of-evaluation selection has no best record: it restarts empty
+  best_template = sac_train.empty_best({"policy": template.agent.policy_params, "q": template.agent.q_params})
+  best_template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype), best_template)
+  saved = ckpt.load_state(source, template, best_template)
+  return jax.device_put(saved.tree), saved.history, saved.best
+
+
+def write_metrics_csv(path: Path, history: dict, seeds) -> None:
+  """Long format: one row per (seed, chunk) with training metrics, one per evaluation with eval/*."""
+  rows = []
+  train = {k: np.asarray(v) for k, v in history.items() if not k.startswith("eval/")}
+  ev = {k: np.asarray(v) for k, v in history.items() if k.startswith("eval/")}
+  for i, s in enumerate(seeds):
+    for c in range(next(iter(train.values())).shape[1] if train else 0):
+      rows.append({"seed": s, "kind": "train"} | {k: float(np.mean(v[i, c])) for k, v in train.items()})
+    for e in range(next(iter(ev.values())).shape[1] if ev else 0):
+      rows.append({"seed": s, "kind": "eval", "env_steps": float(ev["eval/env_steps"][i, e])}
+                  | {k: float(np.mean(v[i, e])) for k, v in ev.items()})
+  keys = list(dict.fromkeys(k for r in rows for k in r))
+  tmp = path.with_name("." + path.name + ".tmp")
+  with open(tmp, "w", newline="") as f:
+    w = csv.DictWriter(f, fieldnames=keys)
+    w.writeheader()
+    w.writerows(rows)
+  tmp.replace(path)
+
+
+def write_tensorboard(log_dir: Path, history: dict, seeds) -> None:
+  """TensorBoard event files, one run per seed (``tensorboard --logdir RUN/tb``), x = env steps."""
+  from tensorboardX import SummaryWriter
+
+  for i, s in enumerate(seeds):
+    with SummaryWriter(str(log_dir / f"seed_{s}")) as w:
+      steps = {"train": history.get("env_steps"), "eval": history.get("eval/env_steps")}
+      for k, v in history.items():
+        x = steps["eval" if k.startswith("eval/") else "train"]
+        v = np.asarray(v)
+        if x is None or k.endswith("env_steps") or not np.issubdtype(v.dtype, np.number):
+          continue
+        for c in range(v.shape[1]):
+          if np.all(np.isfinite(v[i, c])):  # e.g. losses before learning starts
+            w.add_scalar(k if "/" in k else f"train/{k}", float(np.mean(v[i, c])), int(np.asarray(x)[i, c]))
+
+
+RESUME_DOC = """
+  resume: False (default) starts afresh; True continues the interrupted run in ``out`` from its
+    ``out/state`` (same arguments and config; refused with a CheckpointError naming what differs);
+    a run directory continues that run (writing to ``out``, default the same directory). The
+    continued run equals an uninterrupted one exactly (same seeds, same device).
+  save_every: env steps between saves of the resumable state ``out/state`` (whole TrainState and
+    history, written atomically); default about every 10% of training; always saved at the end.
+  overwrite: replace an existing run in ``out`` as a whole (without it, an existing run is refused;
+    a directory that is not an hdt run is always refused, see :mod:`hdt.transfer.rundir`)."""

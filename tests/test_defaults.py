@@ -1,0 +1,178 @@
+"""The one table of defaults (hdt.transfer.configs): budgets refused rather than rounded, unknown tasks
+refused, the CLI and experiments/ build the same configs, tasks own their metrics, and
+``hdt reproduce --out`` publishes its table and figures. No training: every test takes seconds."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hdt import cli
+from hdt.envs.agents import AGENTS
+from hdt.envs.tasks import TASKS, get_task
+from hdt.transfer import configs
+
+
+
+
+
+# -- budgets --------------------------------------------------------------------------------------
+def test_budget_that_does_not_divide_is_refused_not_rounded():
+  with pytest.raises(ValueError, match="set total_env_steps to 704000 or 696000"):
+    configs.low_config("point", num_envs=8, total_env_steps=700_000)
+  with pytest.raises(ValueError, match="multiple of num_envs=8"):
+    configs.high_config("waypoint", num_envs=8, total_env_steps=6001, steps_per_chunk=75)
+  # what divides is kept exactly
+  assert configs.low_config("point", num_envs=8, total_env_steps=704_000).total_env_steps == 704_000
+  assert configs.replace(configs.high_config("maze"), total_env_steps=3000).total_env_steps == 3000
+
+
+def test_cli_refuses_a_budget_in_one_line(tmp_path, capsys):
+  out = tmp_path / "low"
+  assert cli.main(["train", "low", "--agent", "point", "--preset", "paper", "--num-envs", "8",
+                   "--total-env-steps", "700000", "--out", str(out), "--quiet"]) == 1
+  err = capsys.readouterr().err.strip()
+  assert len(err.splitlines()) == 1 and "704000 or 696000" in err and "--total-env-steps" in err, err
+  assert not out.exists()
+
+
+def test_chunk_for_refuses_uneven_evaluations():
+  assert configs.chunk_for(1480, 8, 5) == 37
+  with pytest.raises(ValueError, match="e.g. 1480 or 1520"):
+    configs.chunk_for(1500, 8, 5)
+
+
+def test_unknown_task_is_refused_everywhere():
+  for build in (lambda: configs.high_config("nope"), lambda: configs.full_config("point", "nope"),
+                lambda: configs.config("high", "cpu", task="nope"), lambda: configs.finetune_params("nope"),
+                lambda: get_task("nope")):
+    with pytest.raises(ValueError, match="unknown task 'nope'; choose one of reach, waypoint"):
+      build()
+  with pytest.raises(ValueError, match="'reach' has no HL budget"):
+    configs.high_config("reach")
+
+
+def test_budgets_are_not_env_options():
+  from hdt.envs import make
+  with pytest.raises(ValueError, match="ll_budget is the LL's training budget.*--total-env-steps"):
+    make("point", "reach", ll_budget=10)
+  with pytest.raises(ValueError, match="unknown override"):
+    make("point", "waypoint", hl_budget=10)  # class data of the task, not a field
+
+
+def test_defaults_are_data_on_agents_and_tasks():
+  assert configs.low_config("ant").total_env_steps == AGENTS["ant"].ll_budget == 2_500_000
+  assert configs.low_config("arm3").total_env_steps == AGENTS["arm3"].ll_budget == 1_200_000
+  assert configs.low_config("point").total_env_steps == AGENTS["point"].ll_budget == 200_000
+  for name in TASKS:
+    task = get_task(name)
+    if task.hl_budget:
+      assert configs.high_config(name).total_env_steps == task.hl_budget
+      assert configs.full_config("point" if task.family == "nav" else "arm3", name).total_env_steps == task.hl_budget
+      assert configs.finetune_params(name) == dict(kl=task.finetune_kl, lr=task.finetune_lr)
+  assert configs.finetune_params("maze") == dict(kl=0.01, lr=1e-3)
+  assert configs.finetune_params("push1") == dict(kl=1.0, lr=1e-2)
+
+
+# -- one table for the CLI and experiments/ -------------------------------------------------------
+def _cli_config(level, preset, agent=None, task=None):
+  argv = {"low": ["train", "low", "--agent", agent], "full": ["train", "full", "--agent", agent, "--task", task],
+          "high": ["train", "high", "--task", task, "--low", "unused"]}[level]
+  args = cli.build_parser().parse_args(argv + ["--preset", preset])
+  return cli._sac_config(args, level, agent, task)
+
+
+@pytest.mark.parametrize("name", ["table1", "table2", "table3", "fig5", "fig6"])
+def test_presets_agree_between_cli_and_experiments(name):
+  mod = cli.load_experiment(name)
+  from experiments import common as C
+  for preset in mod.PRESETS:
+    pr = C.experiment_preset(mod.PRESETS, preset)
+    assert pr["sac"] in configs.PRESETS
+    study = getattr(mod, "STUDY", None)
+    agents = [study.a, study.b] if study else [a for row in getattr(mod, "ROWS", {}).values() for a in row[:2]] or mod.AGENTS
+    tasks = [study.task] if study else sorted({r[2] for r in mod.ROWS.values()}) if hasattr(mod, "ROWS") else ["waypoint", "maze", "push1"]
+    for agent in agents:
+      assert C.low_cfg(agent, pr) == _cli_config("low", pr["sac"], agent=agent), (name, preset, agent)
+    for task in tasks:
+      assert C.high_cfg(task, None, pr) == _cli_config("high", pr["sac"], task=task), (name, preset, task)
+
+
+def test_ant_ll_budget_is_the_same_in_reproduce_and_train():
+  fig6 = cli.load_experiment("fig6")
+  from experiments import common as C
+  pr = C.experiment_preset(fig6.PRESETS, "cpu")
+  assert C.low_cfg("ant", pr).total_env_steps == _cli_config("low", "cpu", agent="ant").total_env_steps == 100_000
+
+
+def test_cli_presets_are_the_configs_table():
+  assert cli.PRESETS == tuple(configs.PRESETS)
+  assert "2.5M" in configs.describe_paper_budgets() and "500k push1" in configs.describe_paper_budgets()
+
+
+# -- metrics ----------------------------------------------------------------------------------------
+def test_tasks_declare_headline_and_hl_step_reductions():
+  assert get_task("waypoint").headline == "return" and get_task("waypoint").headline_column == "eval/return"
+  for name in ("maze", "steps", "push1", "push2", "insert", "reach"):
+    assert get_task(name).headline_column == "eval/success_max", name
+  assert get_task("waypoint").reduction("waypoints") == "sum"
+  assert get_task("maze").reduction("success") == "last" and get_task("maze").reduction("fall") == "max"
+  assert get_task("push1").reduction("dist") == "mean"
+
+
+def test_kl_term_is_logged_as_kl():
+  from hdt.agents import networks as nets
+  from hdt.agents.kl import make_kl_regularizer
+  from hdt.agents.replay import Transition
+  from hdt.agents.sac import SACConfig, init_sac_state, make_update
+  cfg = SACConfig(hidden_sizes=(8,), batch_size=4, buffer_size=64, total_env_steps=20, steps_per_chunk=10,
+                  learning_starts=4)
+  networks = nets.make_sac_networks(3, 2, cfg.hidden_sizes)
+  state = init_sac_state(networks, cfg, jax.random.PRNGKey(0))
+  reg = make_kl_regularizer(networks.policy_apply, state.policy_params)
+  batch = Transition(obs=jnp.ones((4, 3)), action=jnp.zeros((4, 2)), reward=jnp.zeros(4),
+                     next_obs=jnp.ones((4, 3)), discount=jnp.ones(4))
+  update = make_update(networks, cfg, 2, actor_regularizer=reg)
+  _, m = jax.eval_shape(update, state, batch, jnp.zeros((2, 4, 2)), 0.5)  # traced, not compiled: fast
+  assert {"kl", "kl_weight"} <= set(m) and "regularizer" not in m
+  _, m = jax.eval_shape(make_update(networks, cfg, 2), state, batch, jnp.zeros((2, 4, 2)), 0.5)
+  assert {"regularizer", "regularizer_weight"} <= set(m) and "kl" not in m  # a generic regulariser
+
+
+# -- hdt reproduce --out ------------------------------------------------------------------------------
+def test_reproduce_out_writes_table_and_figures(tmp_path, monkeypatch, capsys):
+  """The experiment's own run is stubbed (training is covered by test_experiments' slow test); the
+  CLI's part is checked: table (.md, .json) and figures land in --out; smoke leaves RESULTS.md alone."""
+  from experiments import common as C
+  from hdt.plots import learning_curves
+  monkeypatch.setattr(C, "RESULTS", tmp_path / "results")
+  fig5 = cli.load_experiment("fig5")
+
+  def run(preset, out, seeds=None, quiet=False):
+    x = np.array([[0.0, 64.0]])
+    c = {"env_steps": x, "success": np.array([[0.0, 0.5]]), "return": np.array([[-1.0, 2.0]])}
+    entry = dict(metric="success", mean=0.5, std=0.0, per_seed=[0.5], episodes=2)
+    png = learning_curves({"finetune": (x, c["success"])}, C.RESULTS / f"fig5_{preset}.png", title="stub")
+    result = dict(experiment="fig5", preset=preset, command=C.command("fig5", preset), seeds=1, a="arm_point",
+                  b="arm3", task="push1", k=35, kl=1.0, lr=0.01, hl_steps=64, b_env_steps=2240,
+                  zero_shot=entry, png=str(png),
+                  methods={"finetune": dict(entry, csv=C.write_curve_csvs(C.RESULTS / f"fig5_{preset}", "finetune", c))})
+    C.write_result("fig5", preset, result)
+    return result
+
+  monkeypatch.setattr(fig5, "run", run)
+  monkeypatch.setattr(cli, "load_experiment", lambda name: fig5)
+  results_md = tmp_path / "RESULTS.md"
+  out = tmp_path / "out"
+  assert cli.main(["reproduce", "fig5", "--preset", "smoke", "--out", str(out), "--quiet",
+                   "--results-md", str(results_md)]) == 0
+  assert json.loads((out / "fig5_smoke.json").read_text())["methods"]["finetune"]["mean"] == 0.5
+  assert "| zero-shot |" in (out / "fig5_smoke.md").read_text()
+  assert (out / "fig5_smoke.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+  assert (out / "fig5_smoke" / "finetune_seed0.csv").exists()
+  assert not results_md.exists()  # smoke: RESULTS.md untouched
+  assert cli.main(["reproduce", "fig5", "--preset", "cpu", "--out", str(out), "--quiet",
+                   "--results-md", str(results_md)]) == 0
+  assert (out / "fig5_cpu.md").exists() and "<!-- hdt:fig5:cpu -->" in results_md.read_text()
