@@ -160,3 +160,22 @@ def test_scripted_peg_insert(agent):
   path = [(0.0, -0.10), (0.0, -0.14), (0.0, -0.2)]
   solved, n, _ = S.run_script(HighLevelEnv(env, ll, None), S.path_script(path, 0.012))
   assert solved, f"{agent}: peg not inserted in {n} HL steps"
+
+
+@pytest.mark.parametrize("agent,qpos,qvel,normal", [("point", 0.4, 0.1, False), ("ant", 0.13, 0.13, True)])
+def test_waypoint_start_noise_is_the_open_arena_classes(agent, qpos, qvel, normal):
+  # point_mass.py PointMassLargeMJ.reset_func: qpos +-0.05 * arena_width (8), qvel +-0.1 uniform;
+  # ant.py Ant.reset_func: qpos +-0.13, qvel 0.13 N(0, 1). The nav LL trains on the same classes.
+  # The mazes keep maze.py's +-0.1 (PointMaze / AntMaze.reset_func).
+  for task, half, vel in [("waypoint", qpos, qvel), ("reach", qpos, qvel), ("maze", 0.1, 0.1)]:
+    env = E.make(agent, task)
+    s = _starts(env, n=512)
+    q = np.asarray(s.physics.qpos)[:, env._qpos_idx] - env._qpos0[env._qpos_idx]
+    q = q if agent == "point" else q[:, 7:]  # the ant's hinges (no noise on its free joint)
+    q = q[:, np.abs(q).max(0) > 1e-6]  # joints at a limit stay clipped there
+    assert np.abs(q).max() <= half + 1e-5 and np.abs(q).max() > 0.95 * half, (task, np.abs(q).max())
+    v = np.asarray(s.physics.qvel)[:, env._qvel_idx]
+    if normal:
+      assert abs(v.std() - vel) < 0.1 * vel, (task, v.std())
+    else:
+      assert np.abs(v).max() <= vel + 1e-6 and np.abs(v).max() > 0.95 * vel, (task, np.abs(v).max())

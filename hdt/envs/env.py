@@ -56,8 +56,9 @@ class AgentTaskEnv:
     # Episode starts (redrawn every episode): uniform qpos noise on the agent's hinge/slide joints and
     # qvel noise on its dofs; the LL reach task has its own distribution (AgentSpec.ll_qpos_*).
     low = task.low_level
+    qpos_noise, qvel_noise = task.start_noise(agent)
     self._start_half = np.zeros(m.nq, np.float32)
-    self._start_half[movable] = agent.init_noise
+    self._start_half[movable] = qpos_noise
     self._start_offset = np.zeros(m.nq, np.float32)
     if low and agent.ll_qpos_noise:
       if len(agent.ll_qpos_noise) != len(movable):
@@ -67,7 +68,7 @@ class AgentTaskEnv:
     if low and agent.ll_qpos_offset:
       self._start_offset[np.array(qpos_idx)[:len(agent.ll_qpos_offset)]] = agent.ll_qpos_offset
     self._qvel_noise = np.zeros(m.nv, np.float32)
-    self._qvel_noise[self._qvel_idx] = agent.init_vel_noise
+    self._qvel_noise[self._qvel_idx] = qvel_noise
 
     def sensor(name):
       i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)

@@ -27,7 +27,7 @@ PREFIX = "hdt_"
 # AgentSpec fields a robot file may set as <numeric name="hdt_<field>">, with their number of entries
 # (None: any) and kind. name, family and xml are not numbers: the name is the path, the family a text.
 _INT = ("frame_skip", "k", "ll_horizon", "qpos_skip", "max_ll_episodes", "ll_budget")
-_SIZE = {"fall_z": 2, "ll_qpos_noise": None, "ll_qpos_offset": None}
+_SIZE = {"fall_z": 2, "open_noise": 2, "ll_qpos_noise": None, "ll_qpos_offset": None}
 NUMERIC_FIELDS = tuple(f.name for f in dataclasses.fields(AgentSpec)
                        if f.name not in ("name", "family", "xml"))
 TEXT_FIELDS = ("family",)

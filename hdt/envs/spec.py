@@ -28,7 +28,10 @@ class AgentSpec:
   reach_eps: float = 0.27  # epsilon_low: LL goal reached within this distance (m); ends an HL step early
   init_noise: float = 0.1  # uniform qpos noise of an episode start, redrawn every episode
   init_vel_noise: float = 0.1  # qvel noise of an episode start (normal for legged agents, else uniform)
-  # LL (reach) starts: per agent-qpos uniform half-widths (empty: init_noise) around qpos0 + offset.
+  # (qpos half-width, qvel scale) of starts in the open arena (Waypoint, and the nav LL, which the
+  # authors train on the Waypoint class: PointMassLargeMJ / Ant.reset_func); empty: the two above.
+  open_noise: tuple[float, ...] = ()
+  # LL (reach) starts: per agent-qpos uniform half-widths (empty: the task's start_noise) around qpos0 + offset.
   # The authors' arms start their LL episodes at random joint angles, their point mass at (0, 0).
   ll_qpos_noise: tuple[float, ...] = ()
   ll_qpos_offset: tuple[float, ...] = ()

@@ -77,6 +77,15 @@ class Task:
     """Task randomness at the start of an episode."""
     return {}
 
+  open_arena: ClassVar[bool] = False  # episodes start with the agent's open-arena noise
+
+  def start_noise(self, agent: AgentSpec) -> tuple[float, float]:
+    """(qpos half-width, qvel scale) of an episode start: the agent's open-arena noise on an
+    ``open_arena`` task (when it has one), else its default."""
+    if self.open_arena and agent.open_noise:
+      return tuple(agent.open_noise)
+    return agent.init_noise, agent.init_vel_noise
+
   def physics_reset(self, key, agent: AgentSpec, fell, timeout):
     """Whether an ended episode also resets the robot (HL tasks: always)."""
     return jnp.bool_(True)
@@ -132,6 +141,11 @@ class Reach(Task):
       return "random_steps.xml"
     return super().scene(agent)
 
+  @property
+  def open_arena(self):
+    # The authors train nav LLs on the Waypoint class (Ant_Low, PointMassLargeMJ_Low).
+    return self.terrain == "plane"
+
   def horizon(self, agent):
     return agent.ll_horizon
 
@@ -183,6 +197,7 @@ class Waypoint(Task):
   hl_relative: tuple[int, ...] = (2,)
   hl_absolute: bool = False
   skill_penalty: float = 0.25  # point_mass.py PointMassLargeMJ, ant.py Ant
+  open_arena: ClassVar[bool] = True  # PointMassLargeMJ / Ant.reset_func, not the maze classes'
   hl_budget: ClassVar[int] = 200_000
   step_reduce: ClassVar[dict[str, str]] = Task.step_reduce | {"waypoints": "sum"}  # any LL step may hit one
 
