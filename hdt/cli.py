@@ -177,6 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
   al.add_argument("--agent", required=True, help=AGENT_HELP)
   al.add_argument("--imitate", required=True, type=Path, help="LL run directory of agent A")
   al.add_argument("--n-offline", type=int, default=20_000, help="A transitions collected offline")
+  al.add_argument("--imitate-params", choices=("best", "final"), default="best",
+                  help="A's parameters to imitate: its best periodic evaluation's (as the authors; final "
+                       "if it has none), or its final ones")
   _training(al)
   _add_dataclass_options(al, DiscConfig, "disc-", "discriminator", "Algorithm 1's discriminator (SPEC 4).")
 
@@ -191,6 +194,9 @@ def build_parser() -> argparse.ArgumentParser:
   ft.add_argument("--mean-only", action="store_true", help="tie only the means")
   ft.add_argument("--lr", type=float, default=None, help="all learning rates (paper: 0.01 / 0.001)")
   ft.add_argument("--low-seed", type=int, default=0)
+  ft.add_argument("--reference-params", choices=("best", "final"), default="best",
+                  help="A's parameters the KL ties to: its best periodic evaluation's (as the authors; "
+                       "final if it has none), or its final ones; finetuning starts from A's final SAC")
   _low_params(ft)
   _training(ft)
 
@@ -362,8 +368,8 @@ def cmd_align(args) -> int:
   cfg = _sac_config(args, "low", args.agent)
   out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate_meta['agent'])}")
   res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
-                  backend=args.backend, quiet=args.quiet, **_run_kw(args),
-                  **_key_values(args.set, "--set"))
+                  backend=args.backend, quiet=args.quiet, imitate_params=args.imitate_params,
+                  **_run_kw(args), **_key_values(args.set, "--set"))
   return _finish(res, args)
 
 
@@ -380,7 +386,7 @@ def cmd_finetune(args) -> int:
   res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
                       backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
-                      low_params=args.low_params,
+                      low_params=args.low_params, reference_params=args.reference_params,
                       **_run_kw(args),
                       **(configs.task_options(args.preset, args.task) | _key_values(args.set, "--set")))
   return _finish(res, args)

@@ -281,3 +281,25 @@ def test_alignment_moves_b_taus_towards_a(tmp_path):
           for n, r in [("a", a), ("plain", plain), ("aligned", aligned)]}
   e_plain, e_aligned = (_energy_distance(taus[n], taus["a"]) for n in ("plain", "aligned"))
   assert e_aligned < 0.95 * e_plain, (e_plain, e_aligned)
+
+
+def test_align_imitates_a_best_by_default(tiny_low, tmp_path, monkeypatch):
+  """The authors' DiscriminatorEnv loads the imitated LL with best=True; align_low records which."""
+  from test_finetune import with_distinct_best
+  from hdt.transfer import align as al
+  a = with_distinct_best(tiny_low.run_dir, tmp_path / "a")
+  cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=100, batch_size=16,
+                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
+  key = jax.random.PRNGKey(0)
+  taus = {w: collect_offline(a, 64, key, num_envs=16, which=w) for w in ("best", "final")}
+  assert not np.allclose(taus["best"], taus["final"])  # the two really act differently
+  real_collect = al.collect_offline
+  for kw, want in [({}, "best"), ({"imitate_params": "final"}, "final")]:
+    got = {}
+    monkeypatch.setattr(al, "collect_offline", lambda *a_, **k: got.update(tau=real_collect(*a_, **k)) or got["tau"])
+    monkeypatch.setattr(al, "_run", lambda *a_, **k: got.update(meta=a_[4]))
+    align_low("point", imitate=a, config=cfg, disc=D.DiscConfig(buffer_size=500), seeds=1, n_offline=64,
+              quiet=True, **kw)
+    np.testing.assert_array_equal(got["tau"], collect_offline(a, 64, key, num_envs=64, which=want))
+    rec = got["meta"]["aligned_to"]
+    assert rec["params"] == want and (want == "final" or rec["params_env_steps"] == 7)

@@ -229,3 +229,54 @@ def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypat
   monkeypatch.setattr(ckpt, "load_all", bad_load_all)
   with pytest.raises(ckpt.CheckpointError, match="observations"):
     finetune_high(high.run_dir, low.run_dir, "waypoint", quiet=True)
+
+
+def with_distinct_best(run, dst):
+  """A copy of the run ``run`` whose seed 0 also keeps a "best" evaluation, different from its final
+  parameters (every float halved), recorded at env step 7."""
+  import shutil
+  shutil.copytree(run, dst)
+  final, _ = ckpt.load(dst, 0)
+  half = lambda x: np.asarray(x) * 0.5 if np.issubdtype(np.asarray(x).dtype, np.floating) else x
+  ckpt.save(dst, 0, final, ckpt.load_meta(dst, 0), best=(jax.tree.map(half, final),
+                                                          {"env_steps": 7, "return": 1.0}))
+  return dst
+
+
+def test_kl_reference_is_a_best_and_the_start_a_final(pm_runs, tmp_path, monkeypatch):
+  """As the authors: the script starts from A's final model (load(..., best=False)) and KLSAC ties
+  it to A's best (load_from_name(kl_policy, best=True)); the metadata says which were used."""
+  root, low, high, _ = pm_runs
+  a = with_distinct_best(high.run_dir, tmp_path / "a")
+  final, best = ckpt.load(a, 0, "final")[0], ckpt.load(a, 0, "best")[0]
+  assert not _leaves_equal(final["policy"], best["policy"])
+  from hdt.transfer import finetune as ft
+  cfg = configs.high_config("waypoint", total_env_steps=400, num_envs=4, steps_per_chunk=25)
+  for which, want in [({}, best), ({"reference_params": "final"}, final)]:
+    captured = {}
+    monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw, meta=a[4]))
+    finetune_high(a, low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=1, quiet=True, **which)
+    ts = captured["initial_state"]
+    seed0 = lambda tree: jax.tree.map(lambda x: x[0], tree)
+    assert _leaves_equal(seed0(ts.agent.policy_params), final["policy"])  # the start: A's final
+    assert _leaves_equal(seed0(ts.aux["kl_reference"]), want["policy"])
+    rec = captured["meta"]["finetuned_from"]
+    assert rec["params"] == "final" and rec["reference_params"] == which.get("reference_params", "best")
+    if not which:
+      assert rec["reference_params_env_steps"] == 7
+  # A run without a best: the reference falls back to A's final parameters, and says so.
+  monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw, meta=a[4]))
+  finetune_high(high.run_dir if "best" not in ckpt.load_meta(high.run_dir, 0) else _without_best(high.run_dir, tmp_path / "nb"),
+                low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=1, quiet=True)
+  assert captured["meta"]["finetuned_from"]["reference_params"] == "final"
+  assert _leaves_equal(jax.tree.map(lambda x: x[0], captured["initial_state"].aux["kl_reference"]),
+                       ckpt.load(high.run_dir, 0, "final")[0]["policy"])
+
+
+def _without_best(run, dst):
+  import shutil
+  shutil.copytree(run, dst)
+  final, _ = ckpt.load(dst, 0)
+  meta = {k: v for k, v in ckpt.load_meta(dst, 0).items() if k != "best"}
+  ckpt.save(dst, 0, final, meta)
+  return dst

@@ -20,12 +20,16 @@ from hdt.transfer.card import PolicyCard, load_low
 from hdt.transfer.runner import RunResult
 from hdt.transfer.runner import run_stage as _run  # (tests spy on align's _run)
 
+# The authors imitate A's best model (hierarchical.py DiscriminatorEnv: load(policy, ..., best=True);
+# final when the run kept no best).
+IMITATE_PARAMS = "best"
+
 
 def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
               disc: DiscConfig = DiscConfig(), seeds=1, out=None, n_offline: int = 20_000,
               backend: str = "auto", quiet: bool = False, imitate_seed: int = 0,
               offline_seed: int = 0, resume=False, save_every=None, overwrite=False,
-              **env_overrides) -> RunResult:
+              imitate_params: str = IMITATE_PARAMS, **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` aligned to the LL saved in ``imitate`` (agent A).
 
   A's data (``disc.data``): "offline" (default, as the paper's main results and the authors' README,
@@ -34,8 +38,10 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
   LL runs in A's reach env alongside each of B's envs on B's sub-goals (``DiscriminatorEnv``).
   Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
   ``discriminator`` (the DiscConfig). ``resume``, ``save_every``: as in :func:`train_low`.
+  ``imitate_params``: A's "best" evaluation's parameters (default, the authors') or its "final" ones;
+  ``aligned_to["params"]`` records which were used.
   """
-  params_a, meta_a, fn_a = load_low(imitate, imitate_seed)
+  params_a, meta_a, fn_a = load_low(imitate, imitate_seed, ckpt.check_which(imitate_params, "imitate_params"))
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = config or configs.low_config(agent)
   card = PolicyCard.from_env(env, "low", config, env_overrides=env_overrides)
@@ -49,10 +55,11 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
                                  tau_scale=tau_scale, expert=expert)
   else:
     tau_a = collect_offline(imitate, n_offline, jax.random.PRNGKey(offline_seed), backend=backend,
-                            seed_index=imitate_seed, include_z=disc.include_z)
+                            seed_index=imitate_seed, include_z=disc.include_z, which=imitate_params)
     al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale)
   meta = dict(card.to_json(), aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
+                                    params=meta_a["params"], params_env_steps=meta_a["params_env_steps"],
                                     n_offline=int(n_offline) if disc.data == "offline" else 0,
                                     offline_seed=offline_seed, tau_scale=tau_scale,
                                     sha256=ckpt.content_hash(imitate, imitate_seed)),
@@ -78,11 +85,12 @@ def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):
 
 
 def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: int = 64,
-                    seed_index: int = 0, include_z: bool = True) -> np.ndarray:
+                    seed_index: int = 0, include_z: bool = True, which: str = IMITATE_PARAMS) -> np.ndarray:
   """(n, 6) discriminator inputs ``(g - s_t, g - s_{t+1}, z)`` ((n, 4) without z) of A's saved LL
   (deterministic actions) on its reach task (uniform goals in its goal box, the LL training episode
-  structure), ``num_envs`` envs in parallel; z is the relative goal of A's own episode."""
-  params, meta, fn = load_low(low_run_dir, seed_index)
+  structure), ``num_envs`` envs in parallel; z is the relative goal of A's own episode. ``which``:
+  A's "best" or "final" parameters."""
+  params, meta, fn = load_low(low_run_dir, seed_index, which)
   env = PolicyCard.from_json(meta, low_run_dir).make_env("reach", backend)
   policy = params["policy"]
   steps = -(-int(n) // num_envs)

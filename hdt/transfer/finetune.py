@@ -18,8 +18,10 @@ learning_starts=None`` restores hdt's earlier start: A's policy only, fresh crit
 HLs saved before ``target_q`` / ``log_alpha`` were kept fall back (with a warning) to A's critics as
 targets and alpha = ``config.init_alpha``.
 
-Seeds: HL seed ``i`` starts from A's HL seed ``i % n_A``. The frozen KL reference is A's seed
-``reference_seed`` (default 0) for every seed, kept per seed in the training state
+Seeds: HL seed ``i`` starts from A's HL seed ``i % n_A`` (its final parameters, as the script's
+``load(args.high, ..., best=False)``). The frozen KL reference is A's seed ``reference_seed``
+(default 0) for every seed, by default its best evaluation's parameters (KLSAC ``setup_model``:
+``load_from_name(kl_policy, best=True)``; final when the run kept no best), kept per seed in the training state
 (:func:`hdt.agents.kl.kl_plugin`). Both the start from A and the KL term are plug-ins of one trainer
 (:mod:`hdt.agents.plugins`). A's observation normaliser, if it has one, travels with its policy and
 critics.
@@ -51,6 +53,9 @@ train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 
 
 INITS = ("sac", "policy")
+# The authors start finetuning from A's final model and tie it to A's best (module docstring).
+INIT_PARAMS = "final"
+REFERENCE_PARAMS = "best"
 
 
 def load_high_sac(high: str | Path, which: str = "final"):
@@ -120,8 +125,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
                   lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
                   resume=False, save_every=None, init: str = "sac", learning_starts: int | None = 0,
-                  low_params: str = LOW_PARAMS, overwrite=False,
-                  **task_overrides) -> RunResult:
+                  low_params: str = LOW_PARAMS, reference_params: str = REFERENCE_PARAMS,
+                  overwrite=False, **task_overrides) -> RunResult:
   """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
 
   kl: initial weight beta of the KL term (paper: 1 for Waypoint / manipulation, 0.01 for Maze);
@@ -135,6 +140,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   low_seed, low_params: the seed of ``low`` whose LL drives every HL seed, and which of its
     parameters (as in ``train_high``).
   reference_seed: A's seed used as the frozen KL reference for every seed.
+  reference_params: which of its parameters: "best" (default, the authors') or "final".
   resume, save_every: as in :func:`hdt.transfer.pipeline.train_low` (a resumed run restarts from its
     saved state, not from A's HL).
   init: "sac" (default, the authors'): start from A's policy, critics, target critics and
@@ -151,12 +157,19 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   if not (anneal_frac >= 0 and np.isfinite(anneal_frac)):
     raise ValueError(f"anneal_frac={anneal_frac}: must be >= 0 (fraction of training over which "
                      f"beta decays to 0)")
-  a_params, a_metas = load_high_sac(high)
+  ckpt.check_which(reference_params, "reference_params")
+  a_params, a_metas = load_high_sac(high, INIT_PARAMS)
   a_policy = a_params["policy"]
   am = a_metas[0]
   n_a = len(a_metas)
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
+  ref_meta = a_metas[reference_seed]
+  if kl > 0 and reference_params != INIT_PARAMS:
+    ref_policy, ref_metas = load_high(high, reference_params)
+    ref_meta = ref_metas[reference_seed]
+  else:
+    ref_policy = a_policy
 
   card_a = PolicyCard.from_json(am, high)
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params,
@@ -181,7 +194,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   plugins = [start_plugin(a_params, pick, seed_list, config, high, init)]
   networks = sac_train.make_networks(env, config)
   if kl > 0:
-    reference = jax.tree.map(lambda x: x[reference_seed], a_policy)
+    reference = jax.tree.map(lambda x: x[reference_seed], ref_policy)
     plugins.append(kl_plugin(networks.policy_apply, reference, kl, anneal_steps, mode, mean_only))
   trainer = sac_train.make_train(env, config, networks=networks, plugins=plugins)
   ts = sac_train.vmapped(trainer).init(sac_train.seed_keys(seed_list))
@@ -189,7 +202,9 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   meta = dict(card_b(config).to_json(), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
                                       params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
-                                      reference_seed=reference_seed),
+                                      reference_seed=reference_seed,
+                                      reference_params=ref_meta.get("params", "final") if kl > 0 else None,
+                                      reference_params_env_steps=ref_meta.get("params_env_steps") if kl > 0 else None),
                   init=init, kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
