@@ -17,6 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script or loaded by path
 from experiments import common as C  # noqa: E402
+from hdt.envs.tasks import get_task  # noqa: E402
 
 ROWS = {  # name: (A, B, task, paper zero-shot plain -> aligned)
     "pm_3link_push1": ("arm_point", "arm3", "push1", (".17", ".34")),
@@ -37,19 +38,23 @@ def run(preset: str = "cpu", out: Path = Path("runs/table2"), seeds: int | None 
   seeds = seeds or pr["seeds"]
   lows, highs, minutes, rows = {}, {}, {}, {}
 
-  def low(agent, imitate=None):  # one run per (agent, A imitated), shared by the rows
-    key = (agent, imitate)
+  def low(agent, terrain, imitate=None):  # one run per (agent, terrain, A imitated), shared by the rows
+    key = (agent, terrain, imitate)
     if key not in lows:
+      name = f"{agent}_low" + (f"_{terrain}" if terrain != "plane" else "") + (f"_aligned_{imitate}" if imitate else "")
+      kw = {} if terrain == "plane" else {"terrain": terrain}  # an insert HL needs an insert-scene LL
       lows[key] = C.timed(minutes, f"low {agent}" + (f"<-{imitate}" if imitate else ""), lambda: C.low(
-          agent, pr, out, seeds, quiet, imitate=lows[(imitate, None)] if imitate else None))
+          agent, pr, out, seeds, quiet, name=name,
+          imitate=lows[(imitate, terrain, None)] if imitate else None, **kw))
     return lows[key]
 
   for name in pr["rows"]:
     a, b, task, paper = ROWS[name]
-    a_low = low(a)
+    terrain = get_task(task).ll_terrain or "plane"
+    a_low = low(a, terrain)
     if (a, task) not in highs:
       highs[(a, task)] = C.timed(minutes, f"high {a} {task}", lambda: C.high(task, a_low, pr, out, seeds, quiet))
-    plain, aligned = low(b), low(b, imitate=a)
+    plain, aligned = low(b, terrain), low(b, terrain, imitate=a)
     rows[name] = dict(a=a, b=b, task=task, paper=dict(plain=paper[0], aligned=paper[1]),
                       plain=C.eval_hl(highs[(a, task)], plain, task, pr["episodes"]),
                       aligned=C.eval_hl(highs[(a, task)], aligned, task, pr["episodes"]),

@@ -138,7 +138,7 @@ def _training(p, env_opts=True):
                  help="replace an existing hdt run in --out as a whole (never a directory hdt did not write)")
   if env_opts:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", default=[],
-                   help="agent/task option, e.g. --set goal=end (maze), --set terrain=steps, "
+                   help="agent/task option, e.g. --set goal=end (maze), --set terrain=steps (or insert), "
                         "--set delta_max=2.0 (repeatable)")
   _add_dataclass_options(p, SACConfig, "", "SAC hyper-parameters",
                          "Default: the paper's value for the agent/level (SPEC 4), then --preset's budget.")

@@ -17,15 +17,16 @@ def point_ll(kp: float, kd: float):
   return policy
 
 
-def arm_ll(env, kp: float = 20.0, kd: float = 2.0, damping: float = 1e-3):
-  """Damped least-squares PD for a planar chain: joint targets J^T (J J^T + damping)^-1 (g - tip);
-  obs = cos(n) ++ sin(n) ++ qvel(n) ++ (g - tip)."""
+def arm_ll(env, kp: float = 20.0, kd: float = 2.0, damping: float = 1e-3, tool: float = 0.0):
+  """Damped least-squares PD for a planar chain: joint targets J^T (J J^T + damping)^-1 (g - p), p the
+  point ``tool`` m beyond the fingertip along the last link (the peg tip: 0.05);
+  obs = cos(n) ++ sin(n) ++ qvel(n) ++ ... ++ (g - p)."""
   m = env.mj_model
   n = env.action_size
   names = [m.body(i).name for i in range(m.nbody)]
   chain = [i for i, nm in enumerate(names) if nm.startswith("agent/") and nm != "agent/fingertip"]
   lengths = np.array([np.linalg.norm(m.body_pos[j]) for j in chain[1:]]
-                     + [np.linalg.norm(m.body_pos[names.index("agent/fingertip")])], np.float32)
+                     + [np.linalg.norm(m.body_pos[names.index("agent/fingertip")]) + tool], np.float32)
 
   def policy(params, obs):
     th = jnp.arctan2(obs[n:2 * n], obs[:n])

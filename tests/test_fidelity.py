@@ -179,3 +179,87 @@ def test_waypoint_start_noise_is_the_open_arena_classes(agent, qpos, qvel, norma
       assert abs(v.std() - vel) < 0.1 * vel, (task, v.std())
     else:
       assert np.abs(v).max() <= vel + 1e-6 and np.abs(v).max() > 0.95 * vel, (task, np.abs(v).max())
+
+
+# -- PegInsert's own LL (insert.py Insert*Low, InsertPMLow) -------------------------------------------
+
+def _insert_reach(agent, policy, n=128, seed=0):
+  """(success rate, states) of ``policy`` over ``n`` LL episodes of the insert reach task."""
+  env = E.make(agent, "reach", terrain="insert")
+  s = _starts(env, n, seed)
+  step = jax.jit(jax.vmap(lambda s: env.step(s, policy(None, s.obs))))
+  for _ in range(env.horizon):
+    s = step(s)  # the metrics of the last step are the episode's end, before the auto-reset
+  return float(np.mean(np.asarray(s.metrics["success"]))), env
+
+
+@pytest.mark.parametrize("agent,rate", [("arm_point", 1.0), ("arm3", 0.8), ("arm4", 0.8)])
+def test_scripted_insert_ll_reaches_peg_tip_goals(agent, rate):
+  # The insert LL's goal-space point is the peg tip, reached within insert.py's epsilon_low 0.015.
+  # (Some arm goals lie beyond the arm's reach: the measured rates are 0.84 arm3, 0.92 arm4.)
+  env = E.make(agent, "reach", terrain="insert")
+  ll = S.point_ll(30.0, 0.5) if agent == "arm_point" else S.arm_ll(env, tool=0.05)
+  got, _ = _insert_reach(agent, ll)
+  assert got >= rate, (agent, got)
+  # No slot wall in the LL scene (reacher_insert*_low.xml), the peg on the end effector.
+  names = [env.mj_model.geom(i).name for i in range(env.mj_model.ngeom)]
+  assert "peg/peg" in names and not any(n.startswith("slot/") for n in names)
+
+
+def test_insert_pm_is_the_authors_insert_point_mass():
+  # reacher_insert_pm.xml: gear 125, ctrl +-1, armature 1, damping 1, slides limited to +-0.3;
+  # InsertPM.reset: HL starts (0.2, 0) +- 0.1, LL starts (0, 0) +- 0.1 (qpos[0] -= 0.2).
+  for task, kw, centre in [("insert", {}, (0.2, 0.0)), ("reach", {"terrain": "insert"}, (0.0, 0.0))]:
+    env = E.make("arm_point", task, **kw)
+    m = env.mj_model
+    np.testing.assert_allclose(m.actuator_gear[:, 0], [125, 125])
+    np.testing.assert_allclose(m.actuator_ctrlrange, [[-1, 1], [-1, 1]])
+    np.testing.assert_allclose(m.dof_armature, [1, 1])
+    np.testing.assert_allclose(m.dof_damping, [1, 1])
+    tip = np.asarray(_starts(env, n=256).obs_hi[:, 2:4])
+    assert np.abs(tip - centre).max() <= 0.1 + 1e-5 and np.abs(tip - centre).max() > 0.09, task
+  assert E.make("arm_point", "push1").mj_model.actuator_gear[0, 0] == 10  # the push PM is unchanged
+
+
+@pytest.mark.parametrize("agent", ["arm_point", "arm3"])
+def test_insert_ll_observation_and_reward_by_hand(agent):
+  # insert.py Insert.agent_state_func: [..., g - fingertip, g - peg]; low_level_reward:
+  # -|peg - g| (+4 within 0.015), minus action_penalty 0.05 * sum(ctrl^2) (Hierarchical.low_level_step).
+  env = E.make(agent, "reach", terrain="insert")
+  step = jax.jit(env.step)
+  s0 = env.reset(jax.random.PRNGKey(1))
+  a = jnp.full(env.action_size, 0.3)
+  for offset in (np.zeros(2), np.array([0.0, 0.04])):
+    nxt = step(s0, a)  # where the peg tip goes in one step; a goal there (+ offset)
+    goal = nxt.obs_hi[:2] + offset
+    s = s0.replace(task=dict(s0.task, t=dict(s0.task["t"], goal=goal)))
+    nxt = step(s, a)
+    peg, tip = np.asarray(nxt.next_obs_hi[:2]), np.asarray(nxt.next_obs_hi[2:4])
+    d = np.linalg.norm(np.asarray(goal) - peg)
+    want = -d - 0.05 * np.sum(np.square(np.asarray(env.ctrl(a)))) + 4.0 * (d < 0.015)
+    assert float(nxt.reward) == pytest.approx(want, abs=1e-5)
+    assert (d < 0.015) == (offset[1] == 0)
+    obs = np.asarray(nxt.next_obs)
+    np.testing.assert_allclose(obs[-4:], np.concatenate([goal - tip, goal - peg]), atol=1e-6)
+    assert obs.shape[-1] == env.obs_lo_size + 4
+
+
+def test_insert_ll_trains_and_only_an_insert_ll_drives_the_insert_hl(tmp_path):
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import configs
+  from hdt.transfer.pipeline import high_env, train_low
+  small = dict(total_env_steps=256, num_envs=4, steps_per_chunk=64, batch_size=16, buffer_size=512,
+               hidden_sizes=(16, 16), num_eval_episodes=2)
+  ins = train_low("arm_point", configs.low_config("arm_point", **small), out=tmp_path / "ins", quiet=True,
+                  terrain="insert")
+  assert ins.history["eval/success_max"].shape[1] >= 2  # a few chunks, each evaluated
+  hl = high_env("insert", ins.run_dir)
+  assert hl.env.agent.xml == "arm_point_insert.xml" and hl.eps == 0.015
+  s = jax.jit(hl.step)(hl.reset(jax.random.PRNGKey(0)), jnp.zeros(2))
+  assert np.isfinite(float(s.reward))
+  plain = train_low("arm_point", configs.low_config("arm_point", **dict(small, total_env_steps=64)),
+                    out=tmp_path / "plain", quiet=True)
+  with pytest.raises(ckpt.CheckpointError, match="--set terrain=insert") as e:
+    high_env("insert", plain.run_dir)
+  assert "\n" not in str(e.value)
+  high_env("push1", plain.run_dir)  # the plain LL still drives the push tasks

@@ -20,3 +20,15 @@ AGENTS: dict[str, AgentSpec] = {
     "arm3": AgentSpec("arm3", xml="arm3.xml", **arm([None] + [2.7] * 2)),
     "arm4": AgentSpec("arm4", xml="arm4.xml", **arm([None] + [2.0] * 3)),
 }
+
+# Scene variants: a morphology the authors build differently for one scene. insert.py InsertPM uses
+# reacher_insert_pm.xml (gear 125, ctrl +-1, armature 1) and starts HL and LL episodes with +-0.1
+# noise (InsertPM.reset); the arms' insert files only add the peg (and the slot wall).
+VARIANTS: dict[tuple[str, str], dict] = {
+    ("arm_point", "insert"): dict(xml="arm_point_insert.xml", init_noise=0.1),
+}
+
+
+def variant(agent: AgentSpec, name: str) -> AgentSpec:
+  """``agent`` as built for the scene variant ``name`` ("" or no entry: unchanged)."""
+  return agent.replace(**VARIANTS.get((agent.name, name), {})) if name else agent

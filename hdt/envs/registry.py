@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from hdt.envs.agents import variant
 from hdt.envs.env import AgentTaskEnv
 from hdt.envs.robot import agent_spec
 from hdt.envs.tasks import TASKS
@@ -46,6 +47,7 @@ def make(agent: str, task: str, backend: str = "auto", **overrides) -> AgentTask
   if bad:
     raise ValueError(f"unknown override(s) {sorted(bad)} for {agent}/{task}; agent fields: "
                      f"{sorted(agent_fields)}; task fields: {sorted(task_fields)}")
-  spec = spec.replace(**{k: v for k, v in overrides.items() if k in agent_fields})
   task_obj = TASKS[task](**{k: v for k, v in overrides.items() if k in task_fields and k not in agent_fields})
+  spec = variant(spec, task_obj.agent_variant)  # e.g. the insert PM (agents.VARIANTS), then the overrides
+  spec = spec.replace(**{k: v for k, v in overrides.items() if k in agent_fields})
   return AgentTaskEnv(spec, task_obj, backend=backend)

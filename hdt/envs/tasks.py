@@ -36,6 +36,11 @@ class Task:
   skill_penalty: float = 0.05
   hl_eps: float | None = None
   low_level: bool = False  # the LL reach task (its own episode starts, AgentSpec.ll_qpos_*)
+  # The LL under (or of) this task observes g - p for the first ``ll_points`` goal-space points of
+  # obs_hi (the insert LL: peg tip and end effector), the goal-space point's last (ll_observation).
+  ll_points: ClassVar[int] = 1
+  agent_variant: ClassVar[str] = ""  # the agents' scene variant (hdt.envs.agents.VARIANTS)
+  ll_terrain: ClassVar[str] = ""  # the reach terrain an LL under this task must be trained on ("": any)
 
   # -- defaults read by training and reporting (class data, not env options) ----------------------
   # The paper's HL budget in HL decisions (its HL "Timesteps", Appendix D); also the Full baseline's
@@ -105,6 +110,13 @@ class Task:
       i += 2 if i in rel else 1
     return jnp.concatenate(parts, axis=-1)
 
+  def ll_observation(self, obs_lo, obs_hi, goal) -> jax.Array:
+    """What an LL observes when sent to ``goal``: obs_lo, then g - p for the other points, then g minus
+    the goal-space point (insert.py Insert.agent_state_func: [..., g - fingertip, g - peg]; the
+    discriminator reads the last two entries)."""
+    rel = [goal - obs_hi[..., 2 * i:2 * i + 2] for i in range(1, self.ll_points)]
+    return jnp.concatenate([obs_lo, *rel, goal - obs_hi[..., :2]], axis=-1)
+
   def policy_obs(self, obs_lo, obs_hi, t) -> jax.Array:
     """The flat observation SAC sees on this task (the Full baseline: both levels)."""
     return jnp.concatenate([obs_lo, obs_hi])
@@ -126,18 +138,31 @@ class Reach(Task):
   name: str = "reach"
   low_level: bool = True
   headline: ClassVar[str] = "success"
-  terrain: str = "plane"  # "steps": random low barriers and 16 rangefinders (the Steps LL)
+  # "steps": random low barriers and 16 rangefinders (the Steps LL); "insert": the PegInsert scene
+  # without the slot wall, the peg tip the goal-space point (insert.py Insert*Low, InsertPMLow)
+  terrain: str = "plane"
 
   def __post_init__(self):
-    if self.terrain not in ("plane", "steps"):
-      raise ValueError(f"reach terrain must be 'plane' or 'steps', got {self.terrain!r}")
+    if self.terrain not in TERRAINS:
+      raise ValueError(f"reach terrain must be one of {', '.join(TERRAINS)}, got {self.terrain!r}")
     if self.terrain == "steps":
       object.__setattr__(self, "rangefinders", Steps.rangefinders)
+    if self.terrain == "insert":
+      for name in ("point_sensor", "tools", "hl_eps"):
+        object.__setattr__(self, name, getattr(Insert, name))
+
+  @property
+  def ll_points(self):
+    return Insert.ll_points if self.terrain == "insert" else 1
+
+  @property
+  def agent_variant(self):
+    return Insert.agent_variant if self.terrain == "insert" else ""
 
   def scene(self, agent):
+    if self.terrain != "plane" and agent.family != TERRAINS[self.terrain]:
+      raise ValueError(f"terrain={self.terrain!r} is for {TERRAINS[self.terrain]} agents")
     if self.terrain == "steps":
-      if agent.family != "nav":
-        raise ValueError("terrain='steps' is for navigation agents")
       return "random_steps.xml"
     return super().scene(agent)
 
@@ -157,22 +182,23 @@ class Reach(Task):
     return fell | (jax.random.uniform(key) < agent.reset_prob)
 
   def obs_hi(self, q, t):
-    return q["point"]
+    return q["point"] if self.ll_points == 1 else jnp.concatenate([q["point"], q["tip"]])
 
   def policy_obs(self, obs_lo, obs_hi, t):
-    return jnp.concatenate([obs_lo, t["goal"] - obs_hi[:2]])
+    return self.ll_observation(obs_lo, obs_hi, t["goal"])
 
   def reward(self, key, agent, q_prev, q, action, t, dt):
     # ``action`` is the raw control (Hierarchical.low_level_step's action_penalty * sum(a^2)).
     ctrl_cost = agent.ctrl_cost * jnp.sum(jnp.square(action))
     dist = jnp.linalg.norm(t["goal"] - q["point"])
+    eps = agent.reach_eps if self.hl_eps is None else self.hl_eps  # insert.py: epsilon_low 0.015
     if agent.family == "nav":
       to_goal = t["goal"] - q_prev["point"]
       progress = jnp.dot(q["point"] - q_prev["point"], to_goal) / (jnp.linalg.norm(to_goal) + 1e-8)
       r = progress / dt - ctrl_cost + agent.survive_bonus
     else:
-      r = -dist - ctrl_cost + agent.success_bonus * (dist < agent.reach_eps)
-    return r, jnp.bool_(False), t, {"goal_dist": dist, "success": (dist < agent.reach_eps).astype(jnp.float32)}
+      r = -dist - ctrl_cost + agent.success_bonus * (dist < eps)
+    return r, jnp.bool_(False), t, {"goal_dist": dist, "success": (dist < eps).astype(jnp.float32)}
 
 
 def _disc(key, radius):
@@ -316,6 +342,10 @@ class Insert(Task):
   tools: tuple = (("peg.xml", "peg/"),)
   hl_eps: float | None = 0.015  # insert.py Insert: epsilon_low
   target: tuple[float, float] = (0.0, -0.19)
+  # Its LL is trained on the insert scene (the authors' Insert*Low) and sees g - tip and g - peg.
+  ll_points: ClassVar[int] = 2
+  agent_variant: ClassVar[str] = "insert"
+  ll_terrain: ClassVar[str] = "insert"
   hl_budget: ClassVar[int] = 500_000
   headline: ClassVar[str] = "success"
 
@@ -329,6 +359,9 @@ class Insert(Task):
     return -20.0 * d2 + 50.0 * solved, solved, t, {"success": solved.astype(jnp.float32),
                                                    "dist": jnp.sqrt(d2)}
 
+
+# Reach terrains and the family each is for ("plane": any).
+TERRAINS = {"plane": "", "steps": "nav", "insert": "manip"}
 
 TASKS = {
     "reach": Reach,

@@ -210,11 +210,17 @@ class PolicyCard:
     overridden = task_overrides.pop("hl_horizon", None)
     hl_horizon = next((h for h in (hl_horizon, overridden) if h is not None), TASKS[task]().hl_horizon)
     check_recorded(self.to_json())  # a robot file must still be there, unchanged
+    need = TASKS[task]().ll_terrain
+    got = (self.env_overrides or {}).get("terrain", "plane")
+    if need and self.task == "reach" and got != need:
+      raise ckpt.CheckpointError(
+          f"the LL in {self.source} was trained on reach with terrain={got!r}, but {task}'s HL needs an LL "
+          f"trained on its scene: train one with `hdt train low --agent {self.agent} --set terrain={need}`")
     inner = make(self.agent, task, backend=backend, hl_horizon=10**6, **self.morphology | task_overrides)
-    if inner.obs_lo_size + self.goal_dim != self.obs_size:
+    if inner.obs_lo_size + self.goal_dim * inner.task.ll_points != self.obs_size:
       raise ckpt.CheckpointError(
           f"the LL observes {self.obs_size} numbers but {self.agent} on {task} gives "
-          f"{inner.obs_lo_size} + {self.goal_dim}: was it trained with other options (e.g. rangefinders for steps)?")
+          f"{inner.obs_lo_size} + {self.goal_dim * inner.task.ll_points}: was it trained with other options (e.g. rangefinders for steps)?")
     return HighLevelEnv(inner, self.policy_fn(), low_params, k=self.k if k is None else k,
                         hl_horizon=hl_horizon, record=record,
                         delta_max=self.delta_max if delta_max is None else delta_max)

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from hdt.envs.core import State
 from hdt.envs.env import AgentTaskEnv
 
-LowPolicy = Callable[[Any, jax.Array], jax.Array]  # (params, obs_lo ++ (g - skill)) -> action
+LowPolicy = Callable[[Any, jax.Array], jax.Array]  # (params, Task.ll_observation) -> action
 
 
 def _reduce(how: str, values: jax.Array, active: jax.Array, last: jax.Array) -> jax.Array:
@@ -42,10 +42,6 @@ def _reduce(how: str, values: jax.Array, active: jax.Array, last: jax.Array) -> 
 def skill(obs_hi: jax.Array) -> jax.Array:
   """Goal-space point of a global observation (torso / end-effector / peg-tip xy)."""
   return obs_hi[..., :2]
-
-
-def ll_observation(obs_lo, obs_hi, goal):
-  return jnp.concatenate([obs_lo, goal - skill(obs_hi)], axis=-1)
 
 
 class HighLevelEnv:
@@ -112,7 +108,7 @@ class HighLevelEnv:
 
     def ll_step(carry, i):
       inner, active, last = carry
-      a = self.low_policy(low, ll_observation(inner.obs_lo, inner.obs_hi, goal))
+      a = self.low_policy(low, task.ll_observation(inner.obs_lo, inner.obs_hi, goal))
       nxt = self.env.step(inner, a, auto_reset=False)
       # Once stopped, the inner state is frozen (the step above is discarded).
       inner = jax.tree.map(lambda n, o: jnp.where(active, n, o), nxt, inner)
