@@ -214,14 +214,14 @@ def test_align_low_online_runs_and_a_follows_b_goals(tiny_low, tmp_path, monkeyp
   with B's, so row i of both buffers carries the same z."""
   from hdt.transfer import align as align_mod
   captured = {}
-  real_run = align_mod._run
+  real_run = align_mod.run_stage
 
-  def spy(*a, **kw):
-    res = real_run(*a, **kw)
-    captured["plugins"] = kw
+  def spy(stage, options):
+    res = real_run(stage, options)
+    captured["stage"] = stage
     return res
 
-  monkeypatch.setattr(align_mod, "_run", spy)
+  monkeypatch.setattr(align_mod, "run_stage", spy)
   # B's LL episodes last 20 steps (A's 100), so B's new goals drive A's restarts
   cfg = configs.low_config("point", total_env_steps=200, num_envs=4, steps_per_chunk=50, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
@@ -231,7 +231,7 @@ def test_align_low_online_runs_and_a_follows_b_goals(tiny_low, tmp_path, monkeyp
   assert np.all(np.isfinite(res.history["disc/loss"]))
   meta = json.loads((tmp_path / "online" / "meta.json").read_text())
   assert meta["discriminator"]["data"] == "online" and meta["aligned_to"]["n_offline"] == 0
-  assert "transition_extras" in captured["plugins"]
+  assert any(p.transition_extras is not None for p in captured["stage"].plugins)
 
   # Replay the training state: A's and B's buffers, row by row, hold the same z
   from hdt.transfer import checkpoint as ck
@@ -297,7 +297,7 @@ def test_align_imitates_a_best_by_default(tiny_low, tmp_path, monkeypatch):
   for kw, want in [({}, "best"), ({"imitate_params": "final"}, "final")]:
     got = {}
     monkeypatch.setattr(al, "collect_offline", lambda *a_, **k: got.update(tau=real_collect(*a_, **k)) or got["tau"])
-    monkeypatch.setattr(al, "_run", lambda *a_, **k: got.update(meta=a_[4]))
+    monkeypatch.setattr(al, "run_stage", lambda stage, options: got.update(meta=stage.meta))
     align_low("point", imitate=a, config=cfg, disc=D.DiscConfig(buffer_size=500), seeds=1, n_offline=64,
               quiet=True, **kw)
     np.testing.assert_array_equal(got["tau"], collect_offline(a, 64, key, num_envs=64, which=want))
