@@ -12,7 +12,7 @@ from hdt.agents.kl import linear_anneal, make_kl_regularizer
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.finetune import finetune_high
-from hdt.transfer.pipeline import high_env, train_high, train_low
+from hdt.transfer.pipeline import high_env, train_high
 
 OBS, ACT = 5, 2
 
@@ -71,16 +71,14 @@ def test_linear_anneal():
 # ------------------------------------------------------------------------------------------------
 # End to end on point mass: A = PM LL + PM HL (trained briefly); finetune A's HL on the same LL.
 
-LOW_STEPS, HIGH_STEPS, FT_STEPS = 3000, 1000, 1000
+HIGH_STEPS, FT_STEPS = 1000, 1000
 DRIFT = 0.05  # KL(pi_B || pi_A) the unregularised HL reaches at least (measured: see the test)
 
 
 @pytest.fixture(scope="module")
-def pm_runs(tmp_path_factory):
+def pm_runs(point_low, tmp_path_factory):
   root = tmp_path_factory.mktemp("ft")
-  low_cfg = configs.low_config("point", total_env_steps=LOW_STEPS, num_envs=8, updates_per_step=8,
-                               steps_per_chunk=LOW_STEPS // 8, num_eval_episodes=4)
-  low = train_low("point", low_cfg, seeds=1, out=root / "low", quiet=True)
+  low = point_low  # the shared point LL (conftest.py); A's HL is this file's own
   high_cfg = configs.high_config("waypoint", total_env_steps=HIGH_STEPS, num_envs=8,
                                  updates_per_step=8, steps_per_chunk=HIGH_STEPS // 8,
                                  num_eval_episodes=4)
