@@ -2,7 +2,7 @@
 
     python benchmarks/startup.py [--agents point arm3 ant] [--warm 2] [--out benchmarks/startup.json]
 
-Each measurement is a fresh process that trains ``hdt.transfer.pipeline.train_low(agent, cfg)`` with
+Each measurement is a fresh process that trains ``hdt.transfer.pipeline.low_stage(agent, cfg)`` with
 the persistent compile cache on (as the CLI does, :func:`hdt.cache.enable_compile_cache`), cfg =
 ``configs.low_config(agent)`` (paper network, batch and buffer) with 8 envs, 8 updates per training
 step and 50 training steps per chunk, 3 chunks, 1 seed.
@@ -35,14 +35,14 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 def child(agent: str) -> dict:
   t0 = time.perf_counter()
   from hdt.cache import enable_compile_cache
-  from hdt.transfer import configs, pipeline
+  from hdt.transfer import configs, pipeline, runner
   t_import = time.perf_counter() - t0
   enable_compile_cache()
   stamps = []
-  pipeline.print_progress = lambda total, quiet, label: lambda step, m: stamps.append(time.perf_counter())
   cfg = configs.low_config(agent, num_envs=8, updates_per_step=8, steps_per_chunk=50, total_env_steps=3 * 400)
   t_call = time.perf_counter()
-  pipeline.train_low(agent, cfg, seeds=1, quiet=True)
+  progress = lambda total, quiet, label: lambda step, m: stamps.append(time.perf_counter())
+  runner.run_stage(pipeline.low_stage(agent, cfg), runner.RunOptions(seeds=1, quiet=True, progress=progress))
   steady = sorted(b - a for a, b in zip(stamps, stamps[1:]))[len(stamps[1:]) // 2]
   return dict(agent=agent, import_s=t_import, first_chunk_end_s=stamps[0] - t_call, steady_chunk_s=steady,
               startup_s=stamps[0] - t_call - steady)

@@ -74,7 +74,7 @@ def full_cfg(agent: str, task: str, env_steps: int, pr: dict):
 
 # -- runs, reused when they match -----------------------------------------------------------------
 def _json(x):
-  return json.loads(json.dumps(x, default=ckpt._jsonable))
+  return json.loads(json.dumps(x, default=ckpt.jsonable))
 
 
 def read_history(metrics_csv: Path, seeds: list[int]) -> dict[str, np.ndarray]:
@@ -178,7 +178,7 @@ def write_text_atomic(path: Path, text: str) -> None:
 def write_result(name: str, preset: str, result: dict) -> Path:
   """``experiments/results/<name>_<preset>.json``, written atomically (keys in insertion order)."""
   path = RESULTS / f"{name}_{preset}.json"
-  write_text_atomic(path, json.dumps(result, indent=1, default=ckpt._jsonable))
+  write_text_atomic(path, json.dumps(result, indent=1, default=ckpt.jsonable))
   return path
 
 

@@ -3,3 +3,32 @@ import os
 # Compiled XLA programs are cached across test runs (and CI steps) to keep the suite fast.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/hdt/jax"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
+
+import pytest  # noqa: E402
+
+# Small point-mass runs trained once per test session and shared by the test files that need "a
+# trained point LL / HL" (test_transfer, test_align, test_finetune): one training and one set of
+# compiled programs instead of one per file. Treat their run directories as read-only; a test that
+# needs a run of its own config trains it itself.
+POINT_LOW_STEPS = POINT_HIGH_STEPS = 4000
+
+
+@pytest.fixture(scope="session")
+def point_low(tmp_path_factory):
+  """A point-mass LL that reaches its goals (4k env steps: goal distance 4.1 -> 0.4)."""
+  from hdt.transfer import configs
+  from hdt.transfer.pipeline import train_low
+  cfg = configs.low_config("point", total_env_steps=POINT_LOW_STEPS, num_envs=8, updates_per_step=8,
+                           steps_per_chunk=125, num_eval_episodes=16)
+  return train_low("point", cfg, seeds=1, out=tmp_path_factory.mktemp("shared") / "point_low", quiet=True)
+
+
+@pytest.fixture(scope="session")
+def point_high(point_low, tmp_path_factory):
+  """A waypoint HL over :func:`point_low` (4k HL decisions)."""
+  from hdt.transfer import configs
+  from hdt.transfer.pipeline import train_high
+  cfg = configs.high_config("waypoint", total_env_steps=POINT_HIGH_STEPS, num_envs=8, updates_per_step=8,
+                            steps_per_chunk=POINT_HIGH_STEPS // 8, num_eval_episodes=8)
+  return train_high("waypoint", point_low.run_dir, cfg, seeds=1,
+                    out=tmp_path_factory.mktemp("shared") / "point_high", quiet=True)

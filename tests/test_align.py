@@ -163,17 +163,11 @@ def test_aux_update_buffer_and_update_cadence_vmapped():
   assert np.all(np.isfinite(np.asarray(m["disc/loss"])))
 
 
-@pytest.fixture(scope="module")
-def tiny_low(tmp_path_factory):
-  """An (almost untrained) point LL checkpoint: enough to exercise collection and alignment."""
-  out = tmp_path_factory.mktemp("runs") / "pm_low"
-  cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=100, batch_size=16,
-                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  return train_low("point", cfg, seeds=1, out=out, quiet=True)
+# A: the point LL trained once per session (point_low, conftest.py).
 
 
-def test_collect_offline_gives_goal_space_taus(tiny_low):
-  tau = collect_offline(tiny_low.run_dir, 300, jax.random.PRNGKey(0), num_envs=16)
+def test_collect_offline_gives_goal_space_taus(point_low):
+  tau = collect_offline(point_low.run_dir, 300, jax.random.PRNGKey(0), num_envs=16)
   assert tau.shape == (300, 6) and np.all(np.isfinite(tau))
   # goals are uniform in the +-4 box around the start, and one step moves the point a little
   assert np.max(np.abs(tau[:16, :2])) <= 4.0 + 1e-3 and np.std(tau[:, 0]) > 0.5
@@ -183,14 +177,14 @@ def test_collect_offline_gives_goal_space_taus(tiny_low):
   assert np.max(np.abs(tau[:, 4:])) <= 4.0
 
 
-def test_align_low_end_to_end_and_meta(tiny_low, tmp_path):
+def test_align_low_end_to_end_and_meta(point_low, tmp_path):
   cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=100, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  res = align_low("point", imitate=tiny_low.run_dir, config=cfg, disc=D.DiscConfig(buffer_size=500),
+  res = align_low("point", imitate=point_low.run_dir, config=cfg, disc=D.DiscConfig(buffer_size=500),
                   seeds=1, out=tmp_path / "aligned", n_offline=256, quiet=True)
   meta = json.loads((tmp_path / "aligned" / "meta.json").read_text())
   assert meta["level"] == "low" and meta["aligned_to"]["agent"] == "point"
-  assert meta["aligned_to"]["path"] == str(tiny_low.run_dir) and meta["discriminator"]["w_init"] == 0.3
+  assert meta["aligned_to"]["path"] == str(point_low.run_dir) and meta["discriminator"]["w_init"] == 0.3
   w = res.history["disc/w"]
   assert w.shape == (1, 1) and 0.1 < w[0, 0] < 0.3  # chunk mean of the annealed weight
   assert meta["discriminator"]["data"] == "offline" and meta["aligned_to"]["n_offline"] == 256
@@ -199,39 +193,39 @@ def test_align_low_end_to_end_and_meta(tiny_low, tmp_path):
   # The discriminator is saved with the LL (inspect / resume the alignment) and reloads exactly.
   logit, m = load_discriminator(tmp_path / "aligned")
   assert m["aligned_to"]["tau_scale"] == 1.0  # the authors feed raw goal-space units
-  tau = collect_offline(tiny_low.run_dir, 64, jax.random.PRNGKey(3), num_envs=16)
+  tau = collect_offline(point_low.run_dir, 64, jax.random.PRNGKey(3), num_envs=16)
   disc = D.Discriminator(tuple(m["discriminator"]["hidden_sizes"]))
   want = disc.apply(jax.tree.map(lambda x: x[0], res.params["discriminator"]), tau)
   np.testing.assert_allclose(np.asarray(logit(tau)), np.asarray(want), rtol=1e-5, atol=1e-6)
   assert load_low(tmp_path / "aligned")[1]["level"] == "low"  # still an ordinary LL checkpoint
   with pytest.raises(ckpt.CheckpointError, match="no discriminator"):
-    load_discriminator(tiny_low.run_dir)
+    load_discriminator(point_low.run_dir)
 
 
-def test_align_low_online_runs_and_a_follows_b_goals(tiny_low, tmp_path, monkeypatch):
+def test_align_low_online_runs_and_a_follows_b_goals(point_low, tmp_path, monkeypatch):
   """Online data (DiscriminatorEnv): A's frozen LL runs in A's reach env next to each B env and is
   given B's relative goal z whenever B's episode gets a new goal; A's inputs are written in lockstep
   with B's, so row i of both buffers carries the same z."""
   from hdt.transfer import align as align_mod
   captured = {}
-  real_run = align_mod._run
+  real_run = align_mod.run_stage
 
-  def spy(*a, **kw):
-    res = real_run(*a, **kw)
-    captured["plugins"] = kw
+  def spy(stage, options):
+    res = real_run(stage, options)
+    captured["stage"] = stage
     return res
 
-  monkeypatch.setattr(align_mod, "_run", spy)
+  monkeypatch.setattr(align_mod, "run_stage", spy)
   # B's LL episodes last 20 steps (A's 100), so B's new goals drive A's restarts
   cfg = configs.low_config("point", total_env_steps=200, num_envs=4, steps_per_chunk=50, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  res = align_low("point", imitate=tiny_low.run_dir, config=cfg, seeds=1, out=tmp_path / "online",
+  res = align_low("point", imitate=point_low.run_dir, config=cfg, seeds=1, out=tmp_path / "online",
                   disc=D.DiscConfig(data="online", buffer_size=500, update_every=1), quiet=True,
                   ll_horizon=20)
   assert np.all(np.isfinite(res.history["disc/loss"]))
   meta = json.loads((tmp_path / "online" / "meta.json").read_text())
   assert meta["discriminator"]["data"] == "online" and meta["aligned_to"]["n_offline"] == 0
-  assert "transition_extras" in captured["plugins"]
+  assert any(p.transition_extras is not None for p in captured["stage"].plugins)
 
   # Replay the training state: A's and B's buffers, row by row, hold the same z
   from hdt.transfer import checkpoint as ck
@@ -252,9 +246,9 @@ def test_align_low_online_runs_and_a_follows_b_goals(tiny_low, tmp_path, monkeyp
   np.testing.assert_array_equal(z_a[mid], z_b[mid])
 
 
-def test_align_low_rejects_other_goal_space(tiny_low):
+def test_align_low_rejects_other_goal_space(point_low):
   with pytest.raises(ValueError, match="goal spaces differ"):
-    align_low("arm3", imitate=tiny_low.run_dir, quiet=True)
+    align_low("arm3", imitate=point_low.run_dir, quiet=True)
 
 
 def _energy_distance(x, y):
@@ -283,11 +277,11 @@ def test_alignment_moves_b_taus_towards_a(tmp_path):
   assert e_aligned < 0.95 * e_plain, (e_plain, e_aligned)
 
 
-def test_align_imitates_a_best_by_default(tiny_low, tmp_path, monkeypatch):
+def test_align_imitates_a_best_by_default(point_low, tmp_path, monkeypatch):
   """The authors' DiscriminatorEnv loads the imitated LL with best=True; align_low records which."""
   from test_finetune import with_distinct_best
   from hdt.transfer import align as al
-  a = with_distinct_best(tiny_low.run_dir, tmp_path / "a")
+  a = with_distinct_best(point_low.run_dir, tmp_path / "a")
   cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=100, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
   key = jax.random.PRNGKey(0)
@@ -297,7 +291,7 @@ def test_align_imitates_a_best_by_default(tiny_low, tmp_path, monkeypatch):
   for kw, want in [({}, "best"), ({"imitate_params": "final"}, "final")]:
     got = {}
     monkeypatch.setattr(al, "collect_offline", lambda *a_, **k: got.update(tau=real_collect(*a_, **k)) or got["tau"])
-    monkeypatch.setattr(al, "_run", lambda *a_, **k: got.update(meta=a_[4]))
+    monkeypatch.setattr(al, "run_stage", lambda stage, options: got.update(meta=stage.meta))
     align_low("point", imitate=a, config=cfg, disc=D.DiscConfig(buffer_size=500), seeds=1, n_offline=64,
               quiet=True, **kw)
     np.testing.assert_array_equal(got["tau"], collect_offline(a, 64, key, num_envs=64, which=want))

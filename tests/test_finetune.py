@@ -12,7 +12,7 @@ from hdt.agents.kl import linear_anneal, make_kl_regularizer
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.finetune import finetune_high
-from hdt.transfer.pipeline import high_env, train_high, train_low
+from hdt.transfer.pipeline import high_env, train_high
 
 OBS, ACT = 5, 2
 
@@ -71,16 +71,14 @@ def test_linear_anneal():
 # ------------------------------------------------------------------------------------------------
 # End to end on point mass: A = PM LL + PM HL (trained briefly); finetune A's HL on the same LL.
 
-LOW_STEPS, HIGH_STEPS, FT_STEPS = 3000, 1000, 1000
+HIGH_STEPS, FT_STEPS = 1000, 1000
 DRIFT = 0.05  # KL(pi_B || pi_A) the unregularised HL reaches at least (measured: see the test)
 
 
 @pytest.fixture(scope="module")
-def pm_runs(tmp_path_factory):
+def pm_runs(point_low, tmp_path_factory):
   root = tmp_path_factory.mktemp("ft")
-  low_cfg = configs.low_config("point", total_env_steps=LOW_STEPS, num_envs=8, updates_per_step=8,
-                               steps_per_chunk=LOW_STEPS // 8, num_eval_episodes=4)
-  low = train_low("point", low_cfg, seeds=1, out=root / "low", quiet=True)
+  low = point_low  # the shared point LL (conftest.py); A's HL is this file's own
   high_cfg = configs.high_config("waypoint", total_env_steps=HIGH_STEPS, num_envs=8,
                                  updates_per_step=8, steps_per_chunk=HIGH_STEPS // 8,
                                  num_eval_episodes=4)
@@ -142,13 +140,23 @@ def _leaves_equal(a, b):
   return len(la) == len(lb) and all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(la, lb))
 
 
+def _capture(captured):
+  """Stands in for finetune's run_stage: records the trainer the runner builds from the stage, the
+  TrainState it starts training from and the run's meta."""
+  def run(stage, options):
+    trainer = sac_train.make_train(stage.env, stage.config, plugins=stage.plugins)
+    keys = sac_train.seed_keys(sac_train.seed_list(options.seeds))
+    captured.update(trainer=trainer, initial_state=sac_train.vmapped(trainer).init(keys), meta=stage.meta)
+  return run
+
+
 def test_finetune_starts_from_a_whole_sac_without_warmup(pm_runs, monkeypatch):
   """As scripts/finetune_high_level_kl.py: A's policy, both critics, target critics and temperature,
   learning_starts=0; Adam states and replay fresh."""
   root, low, high, _ = pm_runs
   from hdt.transfer import finetune as ft
   captured = {}
-  monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw))
+  monkeypatch.setattr(ft, "run_stage", _capture(captured))
   cfg = configs.high_config("waypoint", total_env_steps=400, num_envs=4, steps_per_chunk=25)
   assert cfg.learning_starts > 0  # the default is overridden, as the authors' script does
   finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=2, quiet=True)
@@ -182,7 +190,7 @@ def test_finetune_starts_from_a_whole_sac_without_warmup(pm_runs, monkeypatch):
     return {k: v for k, v in p.items() if k in ("policy", "q")}, metas
 
   monkeypatch.setattr(ckpt, "load_all", old_load_all)
-  monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw))
+  monkeypatch.setattr(ft, "run_stage", _capture(captured))
   import io, contextlib
   err = io.StringIO()
   with contextlib.redirect_stderr(err):
@@ -198,7 +206,7 @@ def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypat
   # Every seed's initial policy is A's HL (one A seed, cycled), with a fresh optimiser state.
   from hdt.transfer import finetune as ft
   captured = {}
-  monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw))
+  monkeypatch.setattr(ft, "run_stage", _capture(captured))
   finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=_ft_config(high_cfg), seeds=2,
                 quiet=True)
   a_params, _ = ckpt.load(high.run_dir, 0)
@@ -207,7 +215,7 @@ def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypat
     np.testing.assert_array_equal(np.asarray(b), np.stack([a, a]))
   monkeypatch.undo()
 
-  monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw))
+  monkeypatch.setattr(ft, "run_stage", _capture(captured))
   finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=_ft_config(high_cfg), seeds=1,
                 quiet=True, init="policy", learning_starts=None)
   assert captured["trainer"].config.learning_starts == _ft_config(high_cfg).learning_starts > 0
@@ -254,7 +262,7 @@ def test_kl_reference_is_a_best_and_the_start_a_final(pm_runs, tmp_path, monkeyp
   cfg = configs.high_config("waypoint", total_env_steps=400, num_envs=4, steps_per_chunk=25)
   for which, want in [({}, best), ({"reference_params": "final"}, final)]:
     captured = {}
-    monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw, meta=a[4]))
+    monkeypatch.setattr(ft, "run_stage", _capture(captured))
     finetune_high(a, low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=1, quiet=True, **which)
     ts = captured["initial_state"]
     seed0 = lambda tree: jax.tree.map(lambda x: x[0], tree)
@@ -265,7 +273,7 @@ def test_kl_reference_is_a_best_and_the_start_a_final(pm_runs, tmp_path, monkeyp
     if not which:
       assert rec["reference_params_env_steps"] == 7
   # A run without a best: the reference falls back to A's final parameters, and says so.
-  monkeypatch.setattr(ft, "_run", lambda *a, **kw: captured.update(kw, meta=a[4]))
+  monkeypatch.setattr(ft, "run_stage", _capture(captured))
   finetune_high(high.run_dir if "best" not in ckpt.load_meta(high.run_dir, 0) else _without_best(high.run_dir, tmp_path / "nb"),
                 low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=1, quiet=True)
   assert captured["meta"]["finetuned_from"]["reference_params"] == "final"

@@ -1,7 +1,7 @@
 """Reliability (issue 9): exact resume, atomic versioned checkpoints, determinism, NaN guards and
 argument validation that fails before anything is written.
 
-Training runs use the toy point-goal env of toy_env.py through ``pipeline._run``, the function every
+Training runs use the toy point-goal env of toy_env.py through ``runner.run_stage``, the function every
 ``train_*`` / ``finetune_high`` / ``align_low`` call ends in (MuJoCo envs compile for over a minute on
 a 2-core CPU); the wiring of the public ``resume=`` keyword is checked by the validation cases.
 """
@@ -26,7 +26,7 @@ from hdt.agents import train as sac_train
 from hdt.agents.discriminator import DiscConfig
 from hdt.agents.sac import SACConfig
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer import pipeline
+from hdt.transfer import pipeline, runner
 from toy_env import PointGoal
 
 ENV = PointGoal()
@@ -40,7 +40,7 @@ _ALIGN = disc_lib.make_alignment(
     DiscConfig(batch_size=8, hidden_sizes=(8,), buffer_size=256, include_z=False),  # toy env: no z
     np.random.default_rng(0).normal(size=(256, disc_lib.TAU_SIZE)).astype(np.float32),
     CFG.total_env_steps, CFG.num_envs)
-ALIGN = dict(reward_fn=_ALIGN.reward_fn, aux_init=_ALIGN.aux_init, aux_update=_ALIGN.aux_update)
+ALIGN = (_ALIGN.plugin,)
 
 
 class Interrupted(Exception):
@@ -48,7 +48,8 @@ class Interrupted(Exception):
 
 
 def train(out, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN, **kw):
-  return pipeline._run(env, config, list(seeds), out, META, True, "toy", **kw, **plugins)
+  return runner.run_stage(runner.Stage(env, config, META, "toy", plugins=plugins),
+                          runner.RunOptions(list(seeds), out, quiet=True, **kw))
 
 
 def without_walltime(history):
@@ -64,7 +65,7 @@ def assert_trees_equal(a, b):
 
 
 def saved_state(run_dir, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN):
-  trainer = sac_train.make_train(env, config, **plugins)
+  trainer = sac_train.make_train(env, config, plugins=plugins)
   template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(list(seeds)))
   return ckpt.load_state(run_dir, template)[:3]
 
@@ -85,11 +86,8 @@ def resumed(tmp_path_factory):
         raise Interrupted(step)
     return progress
 
-  mp = pytest.MonkeyPatch()
-  mp.setattr(pipeline, "print_progress", crash_at_half)
   with pytest.raises(Interrupted):
-    train(out, save_every=HALF)
-  mp.undo()
+    train(out, save_every=HALF, progress=crash_at_half)
   info = ckpt.load_state_info(out)
   assert info["env_steps"] == HALF and not (out / "seed_0").exists()
   return train(out, resume=True, save_every=HALF)
@@ -192,7 +190,7 @@ def test_nan_guard_names_term_and_step_and_keeps_last_good_state(tmp_path):
   env = NaNRewardAfter()
   first_nan = env.nan_at * CFG.num_envs  # env step of the first NaN reward
   with pytest.raises(sac_train.TrainingDiverged) as err:
-    train(tmp_path / "run", env=env, seeds=[3], save_every=100, plugins={})
+    train(tmp_path / "run", env=env, seeds=[3], save_every=100, plugins=())
   e = err.value
   assert isinstance(e, FloatingPointError)
   assert e.term == "critic_loss" and e.seeds == [3] and e.env_step >= first_nan
@@ -200,7 +198,7 @@ def test_nan_guard_names_term_and_step_and_keeps_last_good_state(tmp_path):
   assert f"critic_loss became NaN/inf at env step {e.env_step} (seed 3)" in msg, msg
   assert "learning rate" in msg and "last good training state is kept" in msg
   # The state on disk is the last good one: before the bad chunk, with finite parameters.
-  ts, hist, info = saved_state(tmp_path / "run", seeds=[3], env=env, plugins={})
+  ts, hist, info = saved_state(tmp_path / "run", seeds=[3], env=env, plugins=())
   assert info["env_steps"] < e.env_step <= info["env_steps"] + CFG.env_steps_per_chunk
   assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(ts.agent))
   assert np.all(np.isfinite(hist["critic_loss"]))
@@ -525,8 +523,8 @@ def test_overwrite_replaces_the_whole_run_and_never_mixes_seeds(uninterrupted, t
   assert ckpt.list_seeds(run) == [0, 1] and (run / "tb" / "seed_3").is_dir()
   (run / "seed_1" / "stale.txt").write_text("from the old run")
   with pytest.raises(rundir.RunDirError, match="already holds a run: pass --resume .* --overwrite"):
-    train(run, config=SMALL, seeds=[5], plugins={})
-  res = train(run, config=SMALL, seeds=[5], plugins={}, overwrite=True)
+    train(run, config=SMALL, seeds=[5], plugins=())
+  res = train(run, config=SMALL, seeds=[5], plugins=(), overwrite=True)
   assert ckpt.list_seeds(run) == [0] and not (run / "seed_1").exists()
   assert sorted(p.name for p in (run / "tb").iterdir()) == ["seed_5"]
   assert json.loads((run / "meta.json").read_text())["seeds"] == [5]
@@ -542,7 +540,7 @@ def test_directories_hdt_does_not_own_are_refused_even_with_overwrite(tmp_path):
   before = _snapshot(tmp_path)
   for kw in ({}, {"overwrite": True}):
     with pytest.raises(rundir.RunDirError, match=r"not an hdt directory and not empty \(it holds config.json, seed_0/\)"):
-      train(foreign, config=SMALL, plugins={}, **kw)
+      train(foreign, config=SMALL, plugins=(), **kw)
   assert _snapshot(tmp_path) == before
 
 
@@ -564,7 +562,7 @@ def test_a_second_writer_is_refused_naming_the_pid_and_a_dead_holder_is_taken_ov
   try:
     assert any(line.strip() == "LOCKED" for line in iter(p.stdout.readline, ""))
     with pytest.raises(rundir.RunDirError, match=f"is in use by PID {p.pid}, which is writing to it"):
-      train(run, config=SMALL, plugins={})
+      train(run, config=SMALL, plugins=())
     assert main(["train", "low", "--agent", "point", "--preset", "smoke", "--quiet", "--out", str(run),
                  "--overwrite"]) == 2
     err = capsys.readouterr().err.strip()
@@ -572,7 +570,7 @@ def test_a_second_writer_is_refused_naming_the_pid_and_a_dead_holder_is_taken_ov
   finally:
     os.kill(p.pid, signal.SIGKILL)
     p.wait(timeout=60)
-  res = train(run, config=SMALL, plugins={})  # the dead process's lock is taken over
+  res = train(run, config=SMALL, plugins=())  # the dead process's lock is taken over
   assert ckpt.list_seeds(res.run_dir) == [0, 1]
 
 

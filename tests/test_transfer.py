@@ -10,48 +10,30 @@ import pytest
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.evaluate import compose, evaluate, load_policy, trajectory, zero_shot_matrix
-from hdt.transfer.pipeline import high_env, low_policy_fn, train_high, train_low
-
-LOW_STEPS = 4000
+from hdt.transfer.pipeline import high_env, low_policy_fn, train_low
 
 
-@pytest.fixture(scope="module")
-def pm_low(tmp_path_factory):
-  out = tmp_path_factory.mktemp("runs") / "pm_low"
-  cfg = configs.low_config("point", total_env_steps=LOW_STEPS, num_envs=8, updates_per_step=8,
-                           steps_per_chunk=125, num_eval_episodes=16)
-  return train_low("point", cfg, seeds=1, out=out, quiet=True)
+# point_low, point_high: trained once per session (conftest.py)
 
 
-@pytest.fixture(scope="module")
-def pm_high(pm_low, tmp_path_factory):
-  out = tmp_path_factory.mktemp("runs") / "pm_high"
-  cfg = configs.high_config("waypoint", total_env_steps=HIGH_STEPS, num_envs=8, updates_per_step=8,
-                            steps_per_chunk=HIGH_STEPS // 8, num_eval_episodes=8)
-  return train_high("waypoint", pm_low.run_dir, cfg, seeds=1, out=out, quiet=True)
-
-
-HIGH_STEPS = 4000
-
-
-def test_point_low_level_learns_goal_reaching(pm_low):
-  dist = pm_low.history["eval/goal_dist"][0]  # mean distance to goal over evaluation episodes
+def test_point_low_level_learns_goal_reaching(point_low):
+  dist = point_low.history["eval/goal_dist"][0]  # mean distance to goal over evaluation episodes
   assert dist[-1] < dist[0] / 5, dist  # measured: 4.1 -> 0.4 after 4k steps
 
 
-def test_checkpoint_round_trip(pm_low):
-  params, meta = ckpt.load(pm_low.run_dir, 0)
+def test_checkpoint_round_trip(point_low):
+  params, meta = ckpt.load(point_low.run_dir, 0)
   assert meta["level"] == "low" and meta["agent"] == "point" and meta["delta_max"] == 4.0
   obs = jax.random.normal(jax.random.PRNGKey(0), (32, meta["obs_size"]))
   act = low_policy_fn(meta["hidden_sizes"], meta["obs_size"], meta["action_size"])
   saved = act(params["policy"], obs)
-  live = act(jax.tree.map(lambda x: x[0], pm_low.params["policy"]), obs)
+  live = act(jax.tree.map(lambda x: x[0], point_low.params["policy"]), obs)
   np.testing.assert_array_equal(np.asarray(saved), np.asarray(live))
   for f in ("config.json", "meta.json", "metrics.csv"):
-    assert (pm_low.run_dir / f).exists()
+    assert (point_low.run_dir / f).exists()
 
 
-def test_missing_and_corrupt_checkpoints_are_clear(pm_low, tmp_path):
+def test_missing_and_corrupt_checkpoints_are_clear(point_low, tmp_path):
   with pytest.raises(ckpt.CheckpointError, match="does not exist"):
     ckpt.load(tmp_path / "nope")
   bad = tmp_path / "bad"
@@ -61,10 +43,10 @@ def test_missing_and_corrupt_checkpoints_are_clear(pm_low, tmp_path):
     ckpt.load(bad)
 
 
-def test_high_level_beats_random_high_level(pm_low, pm_high):
-  trained = evaluate(compose(pm_high.run_dir, pm_low.run_dir), "waypoint", episodes=16)
+def test_high_level_beats_random_high_level(point_low, point_high):
+  trained = evaluate(compose(point_high.run_dir, point_low.run_dir), "waypoint", episodes=16)
   # A random HL: uniform sub-goals in the box, same LL, same episodes.
-  env = high_env("waypoint", pm_low.run_dir)
+  env = high_env("waypoint", point_low.run_dir)
 
   def episode(key):
     s = env.reset(key)
@@ -79,28 +61,28 @@ def test_high_level_beats_random_high_level(pm_low, pm_high):
   assert trained["return_mean"] > random_return + 300, (trained["return_mean"], random_return)
 
 
-def test_zero_shot_matrix_matches_direct_evaluation(pm_low, pm_high):
-  m = zero_shot_matrix({"PM": pm_high.run_dir}, {"PM": pm_low.run_dir}, "waypoint", episodes=4)
+def test_zero_shot_matrix_matches_direct_evaluation(point_low, point_high):
+  m = zero_shot_matrix({"PM": point_high.run_dir}, {"PM": point_low.run_dir}, "waypoint", episodes=4)
   assert m["rows"] == ["PM"] and m["cols"] == ["PM"] and len(m["cells"]) == 1
-  direct = evaluate(compose(pm_high.run_dir, pm_low.run_dir), "waypoint", episodes=4)
+  direct = evaluate(compose(point_high.run_dir, point_low.run_dir), "waypoint", episodes=4)
   mean, std, metric = m["cells"][("PM", "PM")]
   assert metric == "return" and mean == pytest.approx(direct["return_mean"]) and std == pytest.approx(direct["return_std"])
 
 
-def test_trajectory_records_top_down_path(pm_low, pm_high):
-  tr = trajectory(compose(pm_high.run_dir, pm_low.run_dir), "waypoint")
+def test_trajectory_records_top_down_path(point_low, point_high):
+  tr = trajectory(compose(point_high.run_dir, point_low.run_dir), "waypoint")
   assert tr["xy"].ndim == 2 and tr["xy"].shape[1] == 2 and len(tr["xy"]) > 50
   assert np.all(np.isfinite(tr["xy"]))
 
 
-def test_composing_incompatible_levels_fails_clearly(pm_low, pm_high, tmp_path):
+def test_composing_incompatible_levels_fails_clearly(point_low, point_high, tmp_path):
   cfg = configs.low_config("arm3", total_env_steps=200, num_envs=2, steps_per_chunk=100, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
   arm = train_low("arm3", cfg, seeds=1, out=tmp_path / "arm_low", quiet=True)
   with pytest.raises(ValueError, match="goal spaces do not match"):
-    compose(pm_high.run_dir, arm.run_dir)
+    compose(point_high.run_dir, arm.run_dir)
   with pytest.raises(ckpt.CheckpointError, match="compose needs an HL"):
-    compose(pm_low.run_dir, pm_low.run_dir)
+    compose(point_low.run_dir, point_low.run_dir)
 
 
 def test_save_to_relative_dir_and_killed_save_leaves_previous(tmp_path, monkeypatch):

@@ -181,7 +181,7 @@ def restart_on_z(env, state, z, where, reset_physics):
   ps = _select(where & reset_physics, fresh, state.physics)
   q = env.quantities(ps)
   t = _select(where, {"goal": q["point"] + z, "z": z}, state.task["t"])
-  lo, hi, obs = env._observe(ps, q, t)
+  lo, hi, obs = env.observe(ps, q, t)
   steps = jnp.where(where, 0, state.task["steps"])
   return state.replace(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo,
                        task=dict(state.task, t=t, steps=steps))
@@ -203,7 +203,7 @@ class Alignment(NamedTuple):
 
   @property
   def plugins(self) -> dict:
-    """The same as make_train's keyword plug-ins (``hdt.transfer.runner.run_stage`` forwards them)."""
+    """The same as make_train's keyword plug-ins (for callers that predate :attr:`plugin`)."""
     out = dict(reward_fn=self.reward_fn, aux_init=self.aux_init, aux_update=self.aux_update)
     return out | ({"transition_extras": self.transition_extras} if self.transition_extras else {})
 

@@ -101,7 +101,8 @@ class AgentTaskEnv:
     touch = jnp.clip(ps.sensordata[self._touch] / self.agent.contact_clip, 0.0, 1.0)
     return jnp.concatenate([qp, qv, touch, ps.sensordata[self._rays]])
 
-  def _observe(self, ps, q, t):
+  def observe(self, ps, q, t):
+    """(obs_lo, obs_hi, policy obs) of physics state ``ps`` with quantities ``q`` and task state ``t``."""
     lo, hi = self.obs_lo(ps), self.task.obs_hi(q, t)
     return lo, hi, self.task.policy_obs(lo, hi, t)
 
@@ -129,7 +130,7 @@ class AgentTaskEnv:
     ps = self.initial_physics(k_phys)
     q = self.quantities(ps)
     t = self.task.sample(k_task, self.agent, q)
-    lo, hi, obs = self._observe(ps, q, t)
+    lo, hi, obs = self.observe(ps, q, t)
     zero = jnp.float32(0.0)
     _, _, _, metrics = self.task.reward(k_task, self.agent, q, q, jnp.zeros(self.action_size), t, self.dt)
     metrics = {k: jnp.zeros_like(v, jnp.float32) for k, v in metrics.items()} | {"fall": zero}
@@ -157,7 +158,7 @@ class AgentTaskEnv:
     fell = self.fell(q)
     metrics = {k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()} | {"fall": fell.astype(jnp.float32)}
     steps = state.task["steps"] + 1
-    next_lo, next_hi, next_obs = self._observe(ps, q, t)
+    next_lo, next_hi, next_obs = self.observe(ps, q, t)
     if not auto_reset:
       return State(physics=ps, obs=next_obs, obs_hi=next_hi, obs_lo=next_lo, next_obs=next_obs, next_obs_hi=next_hi,
                    reward=jnp.asarray(reward, jnp.float32), done=fell.astype(jnp.float32),
@@ -176,7 +177,7 @@ class AgentTaskEnv:
     ps = _where(reset_physics, self.initial_physics(k_phys), ps)
     q = self.quantities(ps)
     t = _where(done, self.task.sample(k_new, self.agent, q), t)
-    lo, hi, obs = self._observe(ps, q, t)
+    lo, hi, obs = self.observe(ps, q, t)
     return State(physics=ps, obs=obs, obs_hi=hi, obs_lo=lo, next_obs=next_obs, next_obs_hi=next_hi,
                  reward=jnp.asarray(reward, jnp.float32), done=done.astype(jnp.float32),
                  discount=1.0 - terminal.astype(jnp.float32),

@@ -17,8 +17,7 @@ from hdt.envs import make
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.card import PolicyCard, load_low
-from hdt.transfer.runner import RunResult
-from hdt.transfer.runner import run_stage as _run  # (tests spy on align's _run)
+from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
 
 # The authors imitate A's best model (hierarchical.py DiscriminatorEnv: load(policy, ..., best=True);
 # final when the run kept no best).
@@ -37,10 +36,22 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
   goals (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by all seeds; "online": A's
   LL runs in A's reach env alongside each of B's envs on B's sub-goals (``DiscriminatorEnv``).
   Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
-  ``discriminator`` (the DiscConfig). ``resume``, ``save_every``: as in :func:`train_low`.
+  ``discriminator`` (the DiscConfig). seeds, out, backend, quiet, resume, save_every, overwrite: see
+  :class:`hdt.transfer.runner.RunOptions`.
   ``imitate_params``: A's "best" evaluation's parameters (default, the authors') or its "final" ones;
   ``aligned_to["params"]`` records which were used.
   """
+  stage = align_stage(agent, imitate, config, disc, n_offline, backend, imitate_seed, offline_seed,
+                      imitate_params, **env_overrides)
+  return run_stage(stage, RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite))
+
+
+def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None,
+                disc: DiscConfig = DiscConfig(), n_offline: int = 20_000, backend: str = "auto",
+                imitate_seed: int = 0, offline_seed: int = 0, imitate_params: str = IMITATE_PARAMS,
+                **env_overrides) -> Stage:
+  """The stage of :func:`align_low`: B's reach env and LL config, the discriminator plug-in against
+  A's data, and a card that records A."""
   params_a, meta_a, fn_a = load_low(imitate, imitate_seed, ckpt.check_which(imitate_params, "imitate_params"))
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = config or configs.low_config(agent)
@@ -64,10 +75,9 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
                                     offline_seed=offline_seed, tau_scale=tau_scale,
                                     sha256=ckpt.content_hash(imitate, imitate_seed)),
               discriminator=dataclasses.asdict(disc))
-  return _run(env, config, seeds, out, meta, quiet, f"align {agent}<-{meta_a['agent']}",
-              resume, save_every, overwrite=overwrite, **al.plugins,
-              # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
-              save_extra=lambda ts: {"discriminator": ts.aux["params"]})
+  return Stage(env, config, meta, f"align {agent}<-{meta_a['agent']}", plugins=(al.plugin,),
+               # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
+               save_extra=lambda ts: {"discriminator": ts.aux["params"]})
 
 
 def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):

@@ -39,11 +39,12 @@ def write_json_atomic(path: Path, obj: Any) -> None:
   path = Path(path)
   fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
   with os.fdopen(fd, "w") as f:
-    json.dump(obj, f, indent=1, sort_keys=True, default=_jsonable)
+    json.dump(obj, f, indent=1, sort_keys=True, default=jsonable)
   os.replace(tmp, path)
 
 
-def _jsonable(x):
+def jsonable(x):
+  """json.dumps(default=jsonable): numpy values as numbers and lists, tuples as lists."""
   if isinstance(x, (np.generic, np.ndarray)):
     return x.tolist()
   if isinstance(x, tuple):
@@ -370,7 +371,7 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
 def differences(saved: Any, requested: Any, path: str = "") -> list[str]:
   """Human-readable differences ``path: saved X, requested Y`` between two JSON-like values
   (compared after a JSON round trip, so tuples equal lists)."""
-  norm = lambda x: json.loads(json.dumps(x, sort_keys=True, default=_jsonable))
+  norm = lambda x: json.loads(json.dumps(x, sort_keys=True, default=jsonable))
   saved, requested = norm(saved), norm(requested)
   if isinstance(saved, dict) and isinstance(requested, dict):
     out = []

@@ -46,8 +46,7 @@ from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.card import PolicyCard, check_level
 from hdt.transfer.pipeline import LOW_PARAMS, high_env_with_low, sac_extras, train_high
-from hdt.transfer.runner import RunResult
-from hdt.transfer.runner import run_stage as _run  # (tests spy on finetune's _run)
+from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
 
 train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
 
@@ -141,13 +140,27 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
     parameters (as in ``train_high``).
   reference_seed: A's seed used as the frozen KL reference for every seed.
   reference_params: which of its parameters: "best" (default, the authors') or "final".
-  resume, save_every: as in :func:`hdt.transfer.pipeline.train_low` (a resumed run restarts from its
-    saved state, not from A's HL).
+  seeds, out, backend, quiet, resume, save_every, overwrite: see
+    :class:`hdt.transfer.runner.RunOptions` (a resumed run restarts from its saved state, not from A's HL).
   init: "sac" (default, the authors'): start from A's policy, critics, target critics and
     temperature; "policy": A's policy only, fresh critics and temperature (see the module docstring).
   learning_starts: env steps of uniform-random actions before learning; 0 (default) as the authors'
     finetuning script; None keeps ``config.learning_starts``.
   """
+  stage = finetune_stage(high, low, task, kl, config, seeds, anneal_frac, mode, mean_only, backend, lr,
+                         low_seed, reference_seed, init, learning_starts, low_params, reference_params,
+                         **task_overrides)
+  return run_stage(stage, RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite))
+
+
+def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
+                   config: SACConfig | None = None, seeds=1, anneal_frac: float = 0.5,
+                   mode: str = "forward", mean_only: bool = False, backend="auto", lr: float | None = None,
+                   low_seed: int = 0, reference_seed: int = 0, init: str = "sac",
+                   learning_starts: int | None = 0, low_params: str = LOW_PARAMS,
+                   reference_params: str = REFERENCE_PARAMS, **task_overrides) -> Stage:
+  """The stage of :func:`finetune_high`: B's HL env, the start-from-A and KL plug-ins (``seeds``: the
+  seeds they start, as they will be trained), and a card that records A."""
   if init not in INITS:
     raise ValueError(f"init={init!r}: use 'sac' (A's whole SAC) or 'policy' (A's policy only)")
   if mode not in MODES:
@@ -188,16 +201,14 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   n = len(seed_list)
   anneal_steps = anneal_frac * config.total_env_steps
 
-  # One trainer: every seed starts from A's SAC (or policy), with fresh optimiser states and replay,
-  # and (kl > 0) keeps its own copy of the KL reference.
+  # Plug-ins of one trainer: every seed starts from A's SAC (or policy), with fresh optimiser states
+  # and replay, and (kl > 0) keeps its own copy of the KL reference.
   pick = np.arange(n) % n_a
   plugins = [start_plugin(a_params, pick, seed_list, config, high, init)]
-  networks = sac_train.make_networks(env, config)
   if kl > 0:
     reference = jax.tree.map(lambda x: x[reference_seed], ref_policy)
-    plugins.append(kl_plugin(networks.policy_apply, reference, kl, anneal_steps, mode, mean_only))
-  trainer = sac_train.make_train(env, config, networks=networks, plugins=plugins)
-  ts = sac_train.vmapped(trainer).init(sac_train.seed_keys(seed_list))
+    policy_apply = sac_train.make_networks(env, config).policy_apply  # pure: the trainer's own is the same
+    plugins.append(kl_plugin(policy_apply, reference, kl, anneal_steps, mode, mean_only))
 
   meta = dict(card_b(config).to_json(), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
                                       params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),
@@ -208,5 +219,4 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   init=init, kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
-  return _run(env, config, seed_list, out, meta, quiet, label, resume, save_every, initial_state=ts,
-              trainer=trainer, save_extra=sac_extras, overwrite=overwrite)
+  return Stage(env, config, meta, label, plugins=tuple(plugins), save_extra=sac_extras)

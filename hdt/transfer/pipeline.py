@@ -1,5 +1,7 @@
 """One call per stage: ``train_low``, ``train_high``, ``train_full``, each a vmapped seed sweep that
-writes a run directory (config.json, meta.json, metrics.csv, seed_<i>/ checkpoints) through
+writes a run directory (config.json, meta.json, metrics.csv, seed_<i>/ checkpoints). Each builds its
+:class:`hdt.transfer.runner.Stage` (``low_stage``, ``high_stage``, ``full_stage``: env, config, card,
+plug-ins) and hands it with its :class:`hdt.transfer.runner.RunOptions` to
 :func:`hdt.transfer.runner.run_stage`; meta.json is the run's :class:`hdt.transfer.card.PolicyCard`."""
 
 from __future__ import annotations
@@ -17,14 +19,8 @@ from hdt.transfer import configs
 from hdt.transfer.align import align_low
 from hdt.transfer.card import ObsLayout, PolicyCard, load_low, low_policy_fn  # noqa: F401 (part of this API)
 from hdt.transfer.hierarchy import HighLevelEnv
-from hdt.transfer.runner import RESUME_DOC, RunResult, check_memory, counted_mujoco_warnings  # noqa: F401
-from hdt.transfer.runner import print_progress, run_points, run_stage, state_bytes, write_metrics_csv  # noqa: F401
-
-
-def _run(*args, **kw) -> RunResult:
-  """:func:`run_stage` reporting progress with this module's ``print_progress`` (looked up per call,
-  so it can be swapped)."""
-  return run_stage(*args, progress_printer=print_progress, **kw)
+from hdt.transfer.runner import RunOptions, RunResult, Stage, run_points, run_stage
+from hdt.transfer.runner import check_memory, counted_mujoco_warnings, state_bytes, write_metrics_csv  # noqa: F401
 
 
 def env_meta(env, level: str, config: SACConfig, **extra) -> dict:
@@ -69,21 +65,22 @@ def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, ba
               quiet=False, imitate=None, disc=None, resume=False, save_every=None, overwrite=False,
               **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` on its ``reach`` task (SPEC 3). With ``imitate=<LL run of A>``
-  the LL is aligned to A's behaviour by a discriminator (Algorithm 1, ``hdt.transfer.align``)."""
+  the LL is aligned to A's behaviour by a discriminator (Algorithm 1, ``hdt.transfer.align``).
+  seeds, out, backend, quiet, resume, save_every, overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
   if imitate is not None:
     kw = {} if disc is None else {"disc": disc}
     return align_low(agent, imitate, config, seeds=seeds, out=out, backend=backend, quiet=quiet,
                      resume=resume, save_every=save_every, overwrite=overwrite, **kw, **env_overrides)
-  env, config, meta, label, extra = _low_stage(agent, config, backend, **env_overrides)
-  return _run(env, config, seeds, out, meta, quiet, label, resume, save_every, extra, overwrite)
+  options = RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite)
+  return run_stage(low_stage(agent, config, backend, **env_overrides), options)
 
 
-def _low_stage(agent: str, config: SACConfig | None, backend="auto", **env_overrides):
-  """(env, config, meta, progress label, save_extra) of :func:`train_low` (without ``imitate``)."""
+def low_stage(agent: str, config: SACConfig | None = None, backend="auto", **env_overrides) -> Stage:
+  """The stage of :func:`train_low` (without ``imitate``)."""
   check_env_overrides(env_overrides, agent, "reach")
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = config or configs.low_config(agent)
-  return env, config, env_meta(env, "low", config, env_overrides=env_overrides), f"low {agent}", None
+  return Stage(env, config, env_meta(env, "low", config, env_overrides=env_overrides), f"low {agent}")
 
 
 def hl_obs_layout(meta: dict) -> dict:
@@ -129,20 +126,20 @@ def train_high(task: str, low: str | Path, config: SACConfig | None = None, seed
                resume=False, save_every=None, low_params: str = LOW_PARAMS, overwrite=False,
                **task_overrides) -> RunResult:
   """HL SAC on ``task`` over the frozen LL in ``low`` (its seed ``low_seed`` drives every HL seed;
-  ``low_params``: the LL's "best" evaluation's parameters (default, as the authors) or "final")."""
-  env, config, meta, label, extra = _high_stage(task, low, config, backend, low_seed, k, low_params,
-                                                **task_overrides)
-  return _run(env, config, seeds, out, meta, quiet, label, resume, save_every, extra, overwrite)
+  ``low_params``: the LL's "best" evaluation's parameters (default, as the authors) or "final").
+  seeds, out, backend, quiet, resume, save_every, overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
+  options = RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite)
+  return run_stage(high_stage(task, low, config, backend, low_seed, k, low_params, **task_overrides), options)
 
 
-def _high_stage(task: str, low: str | Path, config: SACConfig | None, backend="auto", low_seed: int = 0,
-                k: int | None = None, low_params: str = LOW_PARAMS, **task_overrides):
-  """(env, config, meta, progress label, save_extra) of :func:`train_high`."""
+def high_stage(task: str, low: str | Path, config: SACConfig | None = None, backend="auto", low_seed: int = 0,
+               k: int | None = None, low_params: str = LOW_PARAMS, **task_overrides) -> Stage:
+  """The stage of :func:`train_high`."""
   check_env_overrides(task_overrides, task=task)
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params, k=k, **task_overrides)
   config = config or configs.high_config(task)
   meta = env_meta(env, "high", config, low=low_rec, task_overrides=task_overrides)
-  return env, config, meta, f"high {task}", sac_extras
+  return Stage(env, config, meta, f"high {task}", save_extra=sac_extras)
 
 
 def sac_extras(ts) -> dict:
@@ -154,17 +151,18 @@ def sac_extras(ts) -> dict:
 def train_full(agent: str, task: str, config: SACConfig | None = None, seeds=1, out=None,
                backend="auto", quiet=False, resume=False, save_every=None, overwrite=False,
                **env_overrides) -> RunResult:
-  """The flat 'Full' baseline: SAC on the task with the agent's own torques."""
-  env, config, meta, label, extra = _full_stage(agent, task, config, backend, **env_overrides)
-  return _run(env, config, seeds, out, meta, quiet, label, resume, save_every, extra, overwrite)
+  """The flat 'Full' baseline: SAC on the task with the agent's own torques.
+  seeds, out, backend, quiet, resume, save_every, overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
+  options = RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite)
+  return run_stage(full_stage(agent, task, config, backend, **env_overrides), options)
 
 
-def _full_stage(agent: str, task: str, config: SACConfig | None, backend="auto", **env_overrides):
-  """(env, config, meta, progress label, save_extra) of :func:`train_full`."""
+def full_stage(agent: str, task: str, config: SACConfig | None = None, backend="auto", **env_overrides) -> Stage:
+  """The stage of :func:`train_full`."""
   check_env_overrides(env_overrides, agent, task)
   env = make(agent, task, backend=backend, **env_overrides)
   config = config or configs.full_config(agent, task)
-  return env, config, env_meta(env, "full", config, env_overrides=env_overrides), f"full {agent}/{task}", None
+  return Stage(env, config, env_meta(env, "full", config, env_overrides=env_overrides), f"full {agent}/{task}")
 
 
 def sweep(level: str, runs: list[tuple[SACConfig, str | Path | None]], seeds=1, *, backend="auto",
@@ -177,25 +175,20 @@ def sweep(level: str, runs: list[tuple[SACConfig, str | Path | None]], seeds=1, 
   Returns the results in the order of ``runs``."""
   if level not in ("low", "high", "full"):
     raise ValueError(f"level={level!r}: sweep trains 'low', 'high' or 'full'")
-  setup = {"low": _low_stage, "high": _high_stage, "full": _full_stage}[level]
+  setup = {"low": low_stage, "high": high_stage, "full": full_stage}[level]
   groups: dict[tuple, list[int]] = {}
   for i, (cfg, _) in enumerate(runs):
     shape = tuple((k, v) for k, v in dataclasses.asdict(cfg).items() if k not in SWEEPABLE)
     groups.setdefault(shape, []).append(i)
   results: list[RunResult | None] = [None] * len(runs)
+  options = RunOptions(seeds, backend=backend, quiet=quiet, overwrite=overwrite)
   for members in groups.values():
     cfgs = [runs[i][0] for i in members]
     varied = [k for k in SWEEPABLE if len({getattr(c, k) for c in cfgs}) > 1]
-    env, config, meta, label, extra = setup(config=cfgs[0], backend=backend, **stage)
+    st = setup(config=cfgs[0], backend=backend, **stage)
     points = [({k: getattr(runs[i][0], k) for k in varied}, runs[i][1]) for i in members]
-    for i, r in zip(members, run_points(env, config, seeds, points, meta, quiet,
-                                        label + (f" x{len(points)} points" if len(points) > 1 else ""),
-                                        save_extra=extra, overwrite=overwrite,
-                                        progress_printer=print_progress)):
+    if len(points) > 1:
+      st = dataclasses.replace(st, label=f"{st.label} x{len(points)} points")
+    for i, r in zip(members, run_points(st, points, options)):
       results[i] = r
   return results
-
-
-for _f in (train_low, train_high, train_full):
-  _f.__doc__ = (_f.__doc__ or "") + RESUME_DOC  # (None under python -OO)
-del _f

@@ -12,12 +12,13 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import jax
 import numpy as np
 
 from hdt.agents import train as sac_train
+from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import rundir
@@ -57,43 +58,82 @@ def print_progress(total: int, quiet: bool = False, label: str = "") -> Callable
   return progress
 
 
-def run_stage(env, config: SACConfig, seeds, out, meta: dict, quiet: bool, label: str, resume=False,
-              save_every: int | None = None, save_extra: Callable[[Any], dict] | None = None,
-              overwrite: bool = False, progress_printer: Callable | None = None, **plugins) -> RunResult:
-  """Trains, saving the resumable state to ``out/state`` every ``save_every`` env steps and at the
-  end, then writes the run directory. Every argument is checked before anything is written, and
-  ``out`` is claimed (hdt.transfer.rundir: owned by hdt, locked, replaced whole with ``overwrite``)
-  before anything is compiled. save_extra(final TrainState) -> {name: pytree with a seed axis}
-  saved next to "policy" and "q" in every seed's checkpoint (e.g. the discriminator of an aligned LL).
-  progress_printer(total, quiet, label) -> progress_fn(step, metrics); default :func:`print_progress`."""
-  return run_points(env, config, seeds, [({}, out)], meta, quiet, label, resume, save_every, save_extra,
-                    overwrite, progress_printer, **plugins)[0]
+@dataclasses.dataclass(frozen=True)
+class Stage:
+  """What a training stage trains, as built by ``hdt.transfer.pipeline.low_stage`` and its kin; how
+  it runs (seeds, output, ...) is a :class:`RunOptions`, the same for every stage."""
+
+  env: Any
+  config: SACConfig
+  meta: dict  # meta.json: the PolicyCard as JSON (PolicyCard.to_json) and the stage's provenance
+  label: str  # names the stage in progress lines
+  plugins: tuple[Plugin, ...] = ()  # folded over by make_train (hdt.agents.plugins)
+  # save_extra(final TrainState) -> {name: pytree with a seed axis}, saved next to "policy" and "q"
+  # in every seed's checkpoint (e.g. an aligned LL's discriminator, an HL's target critics)
+  save_extra: Callable[[Any], dict] | None = None
 
 
-def run_points(env, config: SACConfig, seeds, points: list, meta: dict, quiet: bool, label: str,
-               resume=False, save_every: int | None = None, save_extra: Callable[[Any], dict] | None = None,
-               overwrite: bool = False, progress_printer: Callable | None = None,
-               **plugins) -> list[RunResult]:
+@dataclasses.dataclass(frozen=True)
+class RunOptions:
+  """How a stage runs, whatever it trains.
+
+  seeds: n (seeds 0..n-1) or a list of seeds, trained together as one vmapped program.
+  out: the run directory to write (None: nothing is written).
+  backend: the physics backend the stage's env is built with ("auto", "mjx", "native").
+  quiet: no progress lines.
+  resume: False (default) starts afresh; True continues the interrupted run in ``out`` from its
+    ``out/state`` (same arguments and config; refused with a CheckpointError naming what differs);
+    a run directory continues that run (writing to ``out``, default the same directory). The
+    continued run equals an uninterrupted one exactly (same seeds, same device).
+  save_every: env steps between saves of the resumable state ``out/state`` (whole TrainState and
+    history, written atomically); default about every 10% of training; always saved at the end.
+  overwrite: replace an existing run in ``out`` as a whole (without it, an existing run is refused;
+    a directory that is not an hdt run is always refused, see :mod:`hdt.transfer.rundir`).
+  progress: progress(total, quiet, label) -> fn(env_steps, metrics), called after every chunk;
+    default :func:`print_progress` (looked up per run, so it can be swapped).
+  """
+
+  seeds: int | Sequence[int] = 1
+  out: str | Path | None = None
+  backend: str = "auto"
+  quiet: bool = False
+  resume: bool | str | Path = False
+  save_every: int | None = None
+  overwrite: bool = False
+  progress: Callable[[int, bool, str], Callable[[int, dict], None]] | None = None
+
+
+def run_stage(stage: Stage, options: RunOptions = RunOptions()) -> RunResult:
+  """Trains ``stage`` as ``options`` say, saving the resumable state to ``out/state`` every
+  ``save_every`` env steps and at the end, then writes the run directory. Every argument is checked
+  before anything is written, and ``out`` is claimed (hdt.transfer.rundir: owned by hdt, locked,
+  replaced whole with ``overwrite``) before anything is compiled."""
+  return run_points(stage, [({}, options.out)], options)[0]
+
+
+def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -> list[RunResult]:
   """:func:`run_stage` for grid points ``[(hyper, out)]`` (hyper: values of SWEEPABLE fields replacing
-  ``config``'s) trained together as one vmapped program (``hdt.agents.train.run(hyper=...)``); each
-  point writes its own run directory as if trained alone. Only a single point can resume."""
+  ``stage.config``'s; ``options.out`` is not used) trained together as one vmapped program
+  (``hdt.agents.train.run(hyper=...)``); each point writes its own run directory as if trained
+  alone. Only a single point can resume."""
+  env, config, meta = stage.env, stage.config, stage.meta
+  resume, overwrite = options.resume, options.overwrite
   grid = {k: [h[k] for h, _ in points] for k in points[0][0]}
   configs = [dataclasses.replace(config, **h) for h, _ in points]
-  check_train_memory(env, config, seeds, len(points))
-  seeds = sac_train.seed_list(seeds)
+  check_train_memory(env, config, options.seeds, len(points))
+  seeds = sac_train.seed_list(options.seeds)
   if resume is not False and len(points) > 1:
     raise ValueError("resume continues one run: resume the grid points one at a time")
   outputs = [_outputs(out, resume, overwrite) for _, out in points]
   source = outputs[0][1]
-  save_steps = _save_steps(config, save_every)
-  ts, trainer = plugins.pop("initial_state", None), plugins.pop("trainer", None)
+  save_steps = _save_steps(config, options.save_every)
   # Compiled programs are saved and reloaded (hdt.cache.compiled) when the key below names all they
-  # depend on: not with plug-ins or a caller's trainer (functions no key can name).
+  # depend on: not with plug-ins (functions no key can name).
   backend = getattr(env, "backend", None) or getattr(getattr(env, "env", None), "backend", None)
-  cache_key = None if plugins or trainer or not backend else json.dumps(
+  cache_key = None if stage.plugins or not backend else json.dumps(
       dict(env=type(env).__name__, backend=backend, meta=meta, config=dataclasses.asdict(config)),
       sort_keys=True, default=str)
-  trainer = trainer or sac_train.make_train(env, config, **plugins)
+  trainer = sac_train.make_train(env, config, plugins=stage.plugins)
   infos = [dict(config=dataclasses.asdict(c), meta=dict(meta, sac=dataclasses.asdict(c)) if grid else meta,
                 seeds=seeds) for c in configs]
   if source is not None:
@@ -107,7 +147,7 @@ def run_points(env, config: SACConfig, seeds, points: list, meta: dict, quiet: b
         claims.enter_context(rundir.claim(run_dir, resume=source is not None and _same(source, run_dir),
                                           overwrite=overwrite))
     run_dir = outputs[0][0]
-    history = best = None
+    ts = history = best = None
     if run_dir is not None and source is not None and _same(source, run_dir):
       ckpt.settle_state(run_dir)
     if source is not None:
@@ -123,9 +163,9 @@ def run_points(env, config: SACConfig, seeds, points: list, meta: dict, quiet: b
               ckpt.save_state(run_dir, part(ts, p), part(hist, p), dict(infos[p], env_steps=step),
                               None if best is None else part(best, p))
 
-    progress = (progress_printer or print_progress)(config.total_env_steps, quiet, label)
+    progress = (options.progress or print_progress)(config.total_env_steps, options.quiet, stage.label)
     try:
-      with counted_mujoco_warnings(quiet) as warned:
+      with counted_mujoco_warnings(options.quiet) as warned:
         res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
                             initial_history=history, initial_best=best, eval_at_start=history is None,
                             on_chunk=on_chunk, cache_key=cache_key, **({"hyper": grid} if grid else {}))
@@ -135,7 +175,7 @@ def run_points(env, config: SACConfig, seeds, points: list, meta: dict, quiet: b
               " The last good training states are kept in each run directory's state/." if kept else "")
       note += f" MuJoCo reported {len(warned)} simulation warning(s) before." if warned else ""
       raise sac_train.TrainingDiverged(str(e) + note, e.term, e.env_step, e.seeds) from None
-    params = dict(res.params, **(save_extra(res.state) if save_extra else {}))
+    params = dict(res.params, **(stage.save_extra(res.state) if stage.save_extra else {}))
     results = []
     for p, (run_dir, _) in enumerate(outputs):
       res_p = sac_train.RunResult(part(params, p), part(res.history, p), part(res.state, p),
@@ -340,13 +380,3 @@ def write_tensorboard(log_dir: Path, history: dict, seeds) -> None:
           if np.all(np.isfinite(v[i, c])):  # e.g. losses before learning starts
             w.add_scalar(k if "/" in k else f"train/{k}", float(np.mean(v[i, c])), int(np.asarray(x)[i, c]))
 
-
-RESUME_DOC = """
-  resume: False (default) starts afresh; True continues the interrupted run in ``out`` from its
-    ``out/state`` (same arguments and config; refused with a CheckpointError naming what differs);
-    a run directory continues that run (writing to ``out``, default the same directory). The
-    continued run equals an uninterrupted one exactly (same seeds, same device).
-  save_every: env steps between saves of the resumable state ``out/state`` (whole TrainState and
-    history, written atomically); default about every 10% of training; always saved at the end.
-  overwrite: replace an existing run in ``out`` as a whole (without it, an existing run is refused;
-    a directory that is not an hdt run is always refused, see :mod:`hdt.transfer.rundir`)."""
