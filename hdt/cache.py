@@ -43,6 +43,9 @@ def code_version() -> str:
   return h.hexdigest()
 
 
+_LOADED: dict[str, str] = {}  # the one group of programs this process loaded from disk
+
+
 def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
   """``jitted`` (a ``jax.jit`` function) compiled ahead of time, loaded from ``cache_dir()/aot``
   when a program was saved under ``key`` (which must name everything the program depends on besides
@@ -54,7 +57,11 @@ def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
   if not jax.config.jax_compilation_cache_dir:
     return jitted
   path = cache_dir() / "aot" / f"{hashlib.sha256((key + code_version()).encode()).hexdigest()[:32]}.pkl"
-  if path.exists():
+  group = key.rsplit("|", 1)[0]
+  # XLA:CPU resolves a deserialised program's kernels by name in one process-wide table: programs of a
+  # second loaded group then fail at run time ("Function wrapped_slice not found"). So one group per
+  # process is loaded; the others compile as usual (and the persistent compile cache still helps).
+  if path.exists() and _LOADED.setdefault("group", group) == group:
     try:
       with open(path, "rb") as f:
         return serialize_executable.deserialize_and_load(*pickle.load(f))
