@@ -53,8 +53,13 @@ def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
   compiled and saved. A loaded program pays no tracing, lowering or compiling. Programs with host
   callbacks (``jax.pure_callback``) are not saved: their callbacks live in one process only. Only
   while the persistent compile cache is on (:func:`enable_compile_cache`, as the CLI does); else
-  returns ``jitted`` itself."""
-  if not jax.config.jax_compilation_cache_dir:
+  returns ``jitted`` itself.
+
+  Opt-in (``HDT_AOT_CACHE=1``): on XLA:CPU a loaded program can fail at run time ("Function
+  wrapped_slice not found") once the process holds other compiled programs with kernels of the same
+  name, e.g. in the test suite or a CLI run with a warm cache; without it the persistent compile
+  cache still skips XLA compilation."""
+  if not jax.config.jax_compilation_cache_dir or os.environ.get("HDT_AOT_CACHE") != "1":
     return jitted
   path = cache_dir() / "aot" / f"{hashlib.sha256((key + code_version()).encode()).hexdigest()[:32]}.pkl"
   group = key.rsplit("|", 1)[0]

@@ -254,7 +254,7 @@ def test_cached_programs_load_without_tracing(tmp_path):
   import subprocess
   import sys
   script = _CACHE_SCRIPT.format(tests=os.path.dirname(__file__), jax_dir=str(tmp_path / "jax"))
-  env = dict(os.environ, HDT_CACHE_DIR=str(tmp_path))
+  env = dict(os.environ, HDT_CACHE_DIR=str(tmp_path), HDT_AOT_CACHE="1")
 
   def proc():
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
