@@ -36,14 +36,14 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
   goals (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by all seeds; "online": A's
   LL runs in A's reach env alongside each of B's envs on B's sub-goals (``DiscriminatorEnv``).
   Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
-  ``discriminator`` (the DiscConfig). seeds, out, backend, quiet, resume, save_every, overwrite: see
+  ``discriminator`` (the DiscConfig). backend: the physics backend; seeds, out, quiet, resume, save_every, overwrite: see
   :class:`hdt.transfer.runner.RunOptions`.
   ``imitate_params``: A's "best" evaluation's parameters (default, the authors') or its "final" ones;
   ``aligned_to["params"]`` records which were used.
   """
   stage = align_stage(agent, imitate, config, disc, n_offline, backend, imitate_seed, offline_seed,
                       imitate_params, **env_overrides)
-  return run_stage(stage, RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite))
+  return run_stage(stage, RunOptions(seeds, out, quiet, resume, save_every, overwrite))
 
 
 def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None,

@@ -140,7 +140,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
     parameters (as in ``train_high``).
   reference_seed: A's seed used as the frozen KL reference for every seed.
   reference_params: which of its parameters: "best" (default, the authors') or "final".
-  seeds, out, backend, quiet, resume, save_every, overwrite: see
+  backend: the physics backend; seeds, out, quiet, resume, save_every, overwrite: see
     :class:`hdt.transfer.runner.RunOptions` (a resumed run restarts from its saved state, not from A's HL).
   init: "sac" (default, the authors'): start from A's policy, critics, target critics and
     temperature; "policy": A's policy only, fresh critics and temperature (see the module docstring).
@@ -150,7 +150,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   stage = finetune_stage(high, low, task, kl, config, seeds, anneal_frac, mode, mean_only, backend, lr,
                          low_seed, reference_seed, init, learning_starts, low_params, reference_params,
                          **task_overrides)
-  return run_stage(stage, RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite))
+  return run_stage(stage, RunOptions(seeds, out, quiet, resume, save_every, overwrite))
 
 
 def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0,

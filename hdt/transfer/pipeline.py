@@ -66,12 +66,13 @@ def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, ba
               **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` on its ``reach`` task (SPEC 3). With ``imitate=<LL run of A>``
   the LL is aligned to A's behaviour by a discriminator (Algorithm 1, ``hdt.transfer.align``).
-  seeds, out, backend, quiet, resume, save_every, overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
+  backend: the physics backend ("auto", "mjx", "native"); seeds, out, quiet, resume, save_every,
+  overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
   if imitate is not None:
     kw = {} if disc is None else {"disc": disc}
     return align_low(agent, imitate, config, seeds=seeds, out=out, backend=backend, quiet=quiet,
                      resume=resume, save_every=save_every, overwrite=overwrite, **kw, **env_overrides)
-  options = RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite)
+  options = RunOptions(seeds, out, quiet, resume, save_every, overwrite)
   return run_stage(low_stage(agent, config, backend, **env_overrides), options)
 
 
@@ -127,8 +128,9 @@ def train_high(task: str, low: str | Path, config: SACConfig | None = None, seed
                **task_overrides) -> RunResult:
   """HL SAC on ``task`` over the frozen LL in ``low`` (its seed ``low_seed`` drives every HL seed;
   ``low_params``: the LL's "best" evaluation's parameters (default, as the authors) or "final").
-  seeds, out, backend, quiet, resume, save_every, overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
-  options = RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite)
+  backend: the physics backend ("auto", "mjx", "native"); seeds, out, quiet, resume, save_every,
+  overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
+  options = RunOptions(seeds, out, quiet, resume, save_every, overwrite)
   return run_stage(high_stage(task, low, config, backend, low_seed, k, low_params, **task_overrides), options)
 
 
@@ -152,8 +154,9 @@ def train_full(agent: str, task: str, config: SACConfig | None = None, seeds=1, 
                backend="auto", quiet=False, resume=False, save_every=None, overwrite=False,
                **env_overrides) -> RunResult:
   """The flat 'Full' baseline: SAC on the task with the agent's own torques.
-  seeds, out, backend, quiet, resume, save_every, overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
-  options = RunOptions(seeds, out, backend, quiet, resume, save_every, overwrite)
+  backend: the physics backend ("auto", "mjx", "native"); seeds, out, quiet, resume, save_every,
+  overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
+  options = RunOptions(seeds, out, quiet, resume, save_every, overwrite)
   return run_stage(full_stage(agent, task, config, backend, **env_overrides), options)
 
 
@@ -181,7 +184,7 @@ def sweep(level: str, runs: list[tuple[SACConfig, str | Path | None]], seeds=1, 
     shape = tuple((k, v) for k, v in dataclasses.asdict(cfg).items() if k not in SWEEPABLE)
     groups.setdefault(shape, []).append(i)
   results: list[RunResult | None] = [None] * len(runs)
-  options = RunOptions(seeds, backend=backend, quiet=quiet, overwrite=overwrite)
+  options = RunOptions(seeds, quiet=quiet, overwrite=overwrite)
   for members in groups.values():
     cfgs = [runs[i][0] for i in members]
     varied = [k for k in SWEEPABLE if len({getattr(c, k) for c in cfgs}) > 1]

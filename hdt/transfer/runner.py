@@ -79,7 +79,6 @@ class RunOptions:
 
   seeds: n (seeds 0..n-1) or a list of seeds, trained together as one vmapped program.
   out: the run directory to write (None: nothing is written).
-  backend: the physics backend the stage's env is built with ("auto", "mjx", "native").
   quiet: no progress lines.
   resume: False (default) starts afresh; True continues the interrupted run in ``out`` from its
     ``out/state`` (same arguments and config; refused with a CheckpointError naming what differs);
@@ -95,7 +94,6 @@ class RunOptions:
 
   seeds: int | Sequence[int] = 1
   out: str | Path | None = None
-  backend: str = "auto"
   quiet: bool = False
   resume: bool | str | Path = False
   save_every: int | None = None
