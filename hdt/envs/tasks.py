@@ -147,17 +147,9 @@ class Reach(Task):
       raise ValueError(f"reach terrain must be one of {', '.join(TERRAINS)}, got {self.terrain!r}")
     if self.terrain == "steps":
       object.__setattr__(self, "rangefinders", Steps.rangefinders)
-    if self.terrain == "insert":
-      for name in ("point_sensor", "tools", "hl_eps"):
+    if self.terrain == "insert":  # what the insert LL shares with the HL task above it
+      for name in ("point_sensor", "tools", "hl_eps", "ll_points", "agent_variant"):
         object.__setattr__(self, name, getattr(Insert, name))
-
-  @property
-  def ll_points(self):
-    return Insert.ll_points if self.terrain == "insert" else 1
-
-  @property
-  def agent_variant(self):
-    return Insert.agent_variant if self.terrain == "insert" else ""
 
   def scene(self, agent):
     if self.terrain != "plane" and agent.family != TERRAINS[self.terrain]:
