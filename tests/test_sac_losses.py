@@ -25,12 +25,12 @@ LOG2PI = np.log(2.0 * np.pi)
 # Stub networks: a linear Gaussian policy and two linear critics, with hand-set tiny parameters.
 
 
-def stub_policy_apply(p, obs):
+def stub_policy_apply(p, obs, obs_norm=None):  # obs_norm: None here (no normaliser)
   loc = obs @ p["W"] + p["b"]
   return loc, jnp.broadcast_to(jnp.exp(p["log_std"]), loc.shape)
 
 
-def stub_q_apply(q, obs, act):
+def stub_q_apply(q, obs, act, obs_norm=None):
   x = jnp.concatenate([obs, act], axis=-1)
   return x @ q["w"] + q["c"]  # (..., 2): two critics
 

@@ -5,7 +5,7 @@ Used for KL-regularised finetuning (SPEC section 4): the actor loss of SAC gets
 Gaussians ``N(loc, scale)`` their networks output (the tanh is the same bijection for both, so the KL
 of the squashed distributions equals the KL of the pre-tanh ones), and ``beta`` decays linearly to 0.
 
-``make_kl_regularizer`` returns a function with the ``actor_regularizer(policy_params, obs) -> scalar``
+``make_kl_regularizer`` returns a function with the ``actor_regularizer(policy_params, obs[, obs_norm]) -> scalar``
 signature of :func:`hdt.agents.sac.make_losses` / :func:`hdt.agents.train.make_train`;
 ``linear_anneal`` returns an ``actor_regularizer_schedule(env_steps) -> weight``; ``kl_plugin`` is both
 as a :class:`hdt.agents.plugins.Plugin` whose reference lives per seed in the training state.
@@ -31,8 +31,9 @@ def make_kl_regularizer(
     reference_params: Params,
     mode: str = "forward",
     mean_only: bool = False,
-) -> Callable[[Params, jax.Array], jax.Array]:
-  """``regularizer(policy_params, obs) -> scalar``: batch mean of a closed-form Gaussian KL.
+    reference_obs_norm: Any = None,
+) -> Callable[..., jax.Array]:
+  """``regularizer(policy_params, obs, obs_norm=None) -> scalar``: batch mean of a closed-form Gaussian KL.
 
   ``pi`` = ``policy_apply(policy_params, obs)`` (the policy being trained, B) and
   ``ref`` = ``policy_apply(reference_params, obs)`` (frozen: a closure constant under
@@ -43,26 +44,31 @@ def make_kl_regularizer(
   mean_only=True: both scales are set to the reference's scale, so only the means matter:
       sum_d (loc_pi - loc_ref)^2 / (2 scale_ref^2)   (the same for both modes).
   The KL is summed over action dimensions and averaged over all leading (batch) axes of ``obs``.
+  Each policy applies its own observation statistics to the raw ``obs``: ``obs_norm`` (the trained
+  policy's) and ``reference_obs_norm`` (the reference's, saved with it); None: raw observations.
   """
   term = make_kl_term(policy_apply, mode, mean_only)
   reference_params = jax.tree_util.tree_map(jnp.asarray, reference_params)
+  reference_obs_norm = jax.tree_util.tree_map(jnp.asarray, reference_obs_norm)
 
-  def regularizer(policy_params, obs):
-    return term(policy_params, reference_params, obs)
+  def regularizer(policy_params, obs, obs_norm=None):
+    return term(policy_params, reference_params, obs, obs_norm, reference_obs_norm)
 
   regularizer.metric_name = "kl"  # logged as kl / kl_weight (hdt.agents.sac), not "regularizer"
   return regularizer
 
 
 def make_kl_term(policy_apply, mode: str = "forward", mean_only: bool = False):
-  """``term(policy_params, reference_params, obs) -> scalar``, the KL of :func:`make_kl_regularizer`
-  with the reference as an argument (gradients stopped), e.g. per-seed plug-in state."""
+  """``term(policy_params, reference_params, obs, obs_norm=None, reference_obs_norm=None) -> scalar``,
+  the KL of :func:`make_kl_regularizer` with the reference as an argument (gradients stopped), e.g.
+  per-seed plug-in state."""
   if mode not in MODES:
     raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi || ref)) or 'reverse' (KL(ref || pi))")
 
-  def term(policy_params: Params, reference_params: Params, obs: jax.Array) -> jax.Array:
-    loc, scale = policy_apply(policy_params, obs)
-    ref_loc, ref_scale = jax.lax.stop_gradient(policy_apply(reference_params, obs))
+  def term(policy_params: Params, reference_params: Params, obs: jax.Array, obs_norm=None,
+           reference_obs_norm=None) -> jax.Array:
+    loc, scale = policy_apply(policy_params, obs, obs_norm)
+    ref_loc, ref_scale = jax.lax.stop_gradient(policy_apply(reference_params, obs, reference_obs_norm))
     if mean_only:
       scale = ref_scale
     if mode == "forward":
@@ -75,19 +81,25 @@ def make_kl_term(policy_apply, mode: str = "forward", mean_only: bool = False):
 
 
 KL_REFERENCE = "kl_reference"  # its key in TrainState.aux
+KL_REFERENCE_OBS_NORM = "kl_reference_obs_norm"  # the reference's observation statistics, if it has some
 
 
 def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps: float,
-              mode: str = "forward", mean_only: bool = False) -> Plugin:
+              mode: str = "forward", mean_only: bool = False, reference_obs_norm: Any = None) -> Plugin:
   """The KL term as a training plug-in: ``beta(env_steps) * KL`` (:func:`linear_anneal` from ``beta``
-  to 0 at ``anneal_steps``) to a reference policy kept per seed in ``TrainState.aux["kl_reference"]``;
-  every seed starts with ``reference_params`` (no seed axis)."""
+  to 0 at ``anneal_steps``) to a reference policy kept per seed in ``TrainState.aux["kl_reference"]``
+  (and its observation statistics, if any, in ``aux["kl_reference_obs_norm"]``); every seed starts
+  with ``reference_params`` (no seed axis)."""
   term = make_kl_term(policy_apply, mode, mean_only)
-  reference = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), reference_params)
+  f32 = lambda tree: jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), tree)
+  state = {KL_REFERENCE: f32(reference_params)}
+  if reference_obs_norm is not None:
+    state[KL_REFERENCE_OBS_NORM] = f32(reference_obs_norm)
   return Plugin(
       name="kl",
-      init=lambda key, agent: (agent, {KL_REFERENCE: reference}),
-      regularizer=lambda state, params, obs: term(params, state[KL_REFERENCE], obs),
+      init=lambda key, agent: (agent, dict(state)),
+      regularizer=lambda state, params, obs, obs_norm=None: term(
+          params, state[KL_REFERENCE], obs, obs_norm, state.get(KL_REFERENCE_OBS_NORM)),
       schedule=linear_anneal(beta, anneal_steps),
   )
 

@@ -82,13 +82,17 @@ class TwinQ(nn.Module):
 class SACNetworks:
   """Pure functions over parameter pytrees.
 
-  policy_apply(policy_params, obs) -> (loc, scale)      pre-tanh Gaussian
-  q_apply(q_params, obs, action) -> q                   shape obs.shape[:-1] + (2,)
+  policy_apply(policy_params, obs, obs_norm=None) -> (loc, scale)   pre-tanh Gaussian
+  q_apply(q_params, obs, action, obs_norm=None) -> q                shape obs.shape[:-1] + (2,)
   policy_init(key) -> policy_params;  q_init(key) -> q_params
+
+  ``obs_norm``: running observation statistics (:mod:`hdt.agents.normalizer`) that normalise ``obs``
+  first, or None for raw observations. brax passes them first; here they come last and optional, so
+  that networks without a normaliser (every LL, the default) are applied as ``(params, obs)``.
   """
 
-  policy_apply: Callable[[Params, jax.Array], tuple[jax.Array, jax.Array]]
-  q_apply: Callable[[Params, jax.Array, jax.Array], jax.Array]
+  policy_apply: Callable[..., tuple[jax.Array, jax.Array]]
+  q_apply: Callable[..., jax.Array]
   policy_init: Callable[[jax.Array], Params] | None = None
   q_init: Callable[[jax.Array], Params] | None = None
   observation_size: int | None = None
@@ -101,14 +105,8 @@ def make_sac_networks(
     hidden_sizes: Sequence[int] = (64, 64),
     critic_hidden_sizes: Sequence[int] | None = None,
     activation: Callable[[jax.Array], jax.Array] = nn.relu,
-    normalize_observations: bool = False,
 ) -> SACNetworks:
-  """Builds the policy and twin-Q networks (float32 parameters).
-
-  With ``normalize_observations`` the initial parameters carry a running observation normaliser
-  (``hdt.agents.normalizer``); the apply functions use it whenever the parameters hold one, so they
-  also apply parameters of either layout.
-  """
+  """Builds the policy and twin-Q networks (float32 parameters)."""
   critic_hidden_sizes = tuple(hidden_sizes if critic_hidden_sizes is None else critic_hidden_sizes)
   policy = GaussianPolicy(tuple(hidden_sizes), action_size, activation)
   q = TwinQ(critic_hidden_sizes, activation)
@@ -117,23 +115,17 @@ def make_sac_networks(
   policy_shapes = jax.eval_shape(policy.init, jax.random.PRNGKey(0), dummy_obs)
   q_shapes = jax.eval_shape(q.init, jax.random.PRNGKey(0), dummy_obs, dummy_act)
 
-  def with_norm(params):
-    return dict(params, **{normalizer.KEY: normalizer.init(observation_size)}) if normalize_observations \
-        else params
-
   def policy_init(key):
-    return with_norm(lecun_uniform_init(policy_shapes, key))
+    return lecun_uniform_init(policy_shapes, key)
 
   def q_init(key):
-    return with_norm(lecun_uniform_init(q_shapes, key))
+    return lecun_uniform_init(q_shapes, key)
 
-  def policy_apply(params, obs):
-    params, stats = normalizer.split(params)
-    return policy.apply(params, obs if stats is None else normalizer.normalize(stats, obs))
+  def policy_apply(params, obs, obs_norm=None):
+    return policy.apply(params, obs if obs_norm is None else normalizer.normalize(obs_norm, obs))
 
-  def q_apply(params, obs, action):
-    params, stats = normalizer.split(params)
-    return q.apply(params, obs if stats is None else normalizer.normalize(stats, obs), action)
+  def q_apply(params, obs, action, obs_norm=None):
+    return q.apply(params, obs if obs_norm is None else normalizer.normalize(obs_norm, obs), action)
 
   return SACNetworks(
       policy_apply=policy_apply,

@@ -1,16 +1,12 @@
-"""Running observation statistics (as brax's ``running_statistics``), kept WITH the parameters.
+"""Running observation statistics (as brax's ``running_statistics``), kept APART from the parameters.
 
-A normalised network's parameters are its flax variables plus an ``"obs_norm"`` entry::
-
-    {"params": {...}, "obs_norm": {"count": (), "mean": (obs,), "m2": (obs,)}}
-
-``networks.make_sac_networks(..., normalize_observations=True)`` initialises that layout and its
-``policy_apply`` / ``q_apply`` normalise their observation input with it whenever the entry is present
-(structurally, at trace time), so a checkpointed policy carries its normaliser: anything that applies
-saved policy parameters (``compose``, ``evaluate``, ``finetune_high``, the KL reference) uses the
-statistics the policy was trained with, and parameters without the entry (every LL, older runs) are
-applied unchanged. The statistics are not trained by gradient: the training loop updates them from the
-observations it collects (:func:`update`) and writes them into the policy, critic and target critic.
+The statistics ``{"count": (), "mean": (obs,), "m2": (obs,)}`` live in their own field of the
+training state (``SACState.obs_norm``; ``None`` without normalisation, an empty pytree), as brax's
+``normalizer_params``: the policy, critics and target critics are plain flax variables, and the
+apply functions of :mod:`hdt.agents.networks` take the statistics as an explicit argument. The
+training loop updates them from the observations it collects (:func:`update`); they are never
+differentiated nor soft-updated. A checkpoint stores them beside the parameters (``"obs_norm"`` next
+to ``"policy"`` and ``"q"``), so a saved policy is applied with the statistics it was trained with.
 """
 
 from __future__ import annotations
@@ -18,7 +14,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-KEY = "obs_norm"
+KEY = "obs_norm"  # the statistics' name in checkpoints, beside "policy" and "q"
 STD_MIN = 1e-3  # floor of the standard deviation (a constant input stays finite)
 CLIP = 10.0  # normalised inputs are clipped to [-CLIP, CLIP] (as SB3's VecNormalize clip_obs)
 
@@ -51,18 +47,3 @@ def normalize(stats: dict, obs: jax.Array) -> jax.Array:
   stats = jax.lax.stop_gradient(stats)
   return jnp.clip((obs - stats["mean"]) / std(stats), -CLIP, CLIP)
 
-
-def has(params) -> bool:
-  return isinstance(params, dict) and KEY in params
-
-
-def split(params):
-  """(flax variables without the normaliser, the normaliser or None)."""
-  if has(params):
-    return {k: v for k, v in params.items() if k != KEY}, params[KEY]
-  return params, None
-
-
-def with_stats(params, stats):
-  """``params`` with its normaliser replaced by ``stats`` (unchanged if it has none)."""
-  return dict(params, **{KEY: stats}) if has(params) else params

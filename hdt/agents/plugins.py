@@ -26,7 +26,8 @@ class Plugin:
   update(state, transitions, env_steps, key) -> (state, metrics): once per training step, after the
     new transitions were collected (metrics are averaged over the chunk).
   reward(state, batch) -> rewards: recomputes a sampled batch's rewards before the critic target.
-  regularizer(state, policy_params, obs) -> scalar: added to the actor loss, times ``schedule``.
+  regularizer(state, policy_params, obs) -> scalar: added to the actor loss, times ``schedule``
+    (``regularizer(state, policy_params, obs, obs_norm)`` with an observation normaliser).
   schedule(env_steps) -> weight of the regulariser (default 1).
   transition_extras(env_state, next_env_state) -> pytree stored with each transition.
   """
@@ -52,7 +53,8 @@ def from_callables(actor_regularizer=None, actor_regularizer_schedule=None, rewa
       init=None if aux_init is None else (lambda key, agent: (agent, aux_init(key))),
       update=aux_update,
       reward=reward_fn,
-      regularizer=None if actor_regularizer is None else (lambda state, params, obs: actor_regularizer(params, obs)),
+      regularizer=None if actor_regularizer is None else (
+          lambda state, params, obs, *obs_norm: actor_regularizer(params, obs, *obs_norm)),
       schedule=actor_regularizer_schedule,
       transition_extras=transition_extras,
   )

@@ -7,7 +7,8 @@ a clipped double-Q (twin-min) target, a tanh-squashed Gaussian policy, and a lea
 Two optional plug-ins, both no-ops by default:
 
 * ``actor_regularizer(policy_params, obs) -> scalar`` is added to the actor loss (times a scale the
-  training loop may anneal), e.g. ``beta * KL(pi || pi_ref)`` to a frozen reference policy. It is
+  training loop may anneal; with an observation normaliser it is called as
+  ``actor_regularizer(policy_params, obs, obs_norm)``), e.g. ``beta * KL(pi || pi_ref)`` to a frozen reference policy. It is
   logged as ``<metric_name>`` and its scale as ``<metric_name>_weight``, where ``metric_name`` is
   the function's attribute of that name ("kl" for :func:`hdt.agents.kl.make_kl_regularizer`;
   default "regularizer").
@@ -27,6 +28,7 @@ import optax
 from flax import struct
 
 from hdt.agents import networks as nets
+from hdt.agents import normalizer
 from hdt.agents.replay import Transition
 
 Params = Any
@@ -64,8 +66,8 @@ class SACConfig:
   init_alpha: float = 1.0
   steps_per_chunk: int = 1000  # training steps per compiled chunk
   num_eval_episodes: int = 10
-  # Running mean/std of the collected observations, stored with the policy and critic parameters
-  # (hdt.agents.normalizer) and applied to their inputs.
+  # Running mean/std of the collected observations (SACState.obs_norm, hdt.agents.normalizer),
+  # applied to the inputs of the policy and critics.
   normalize_observations: bool = False
 
   def __post_init__(self):
@@ -186,11 +188,11 @@ def make_losses(
 ):
   """Returns ``(critic_loss, actor_loss, alpha_loss)``, pure functions returning ``(loss, aux)``.
 
-  critic_loss(q_params, target_q_params, policy_params, log_alpha, batch, eps)
+  critic_loss(q_params, target_q_params, policy_params, log_alpha, batch, eps, obs_norm=None)
       0.5 * sum_i mean_b (Q_i(s, a) - y)^2 with
       y = reward_scale * r + discount * gamma * (min_i Q'_i(s', a') - alpha * log pi(a'|s')),
       a' = tanh(loc(s') + scale(s') * eps), y under stop_gradient.
-  actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0)
+  actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0, obs_norm=None)
       mean_b (alpha * log pi(a|s) - min_i Q_i(s, a)) + reg_scale * actor_regularizer(params, obs),
       a = tanh(loc(s) + scale(s) * eps). aux["log_prob"] is the per-sample log-prob (for alpha_loss).
   alpha_loss(log_alpha, log_prob)
@@ -198,31 +200,34 @@ def make_losses(
 
   ``eps`` is standard-normal noise of shape ``(batch, action_size)``: the losses are deterministic
   functions of their inputs, which keeps them testable and lets the training step draw all its
-  randomness at once.
+  randomness at once. ``obs_norm``: the observation statistics every network applies (None: raw
+  observations); never differentiated.
   """
   policy_apply, q_apply = networks.policy_apply, networks.q_apply
 
-  def critic_loss(q_params, target_q_params, policy_params, log_alpha, batch: Transition, eps):
+  def critic_loss(q_params, target_q_params, policy_params, log_alpha, batch: Transition, eps,
+                  obs_norm=None):
     alpha = jnp.exp(log_alpha)
-    loc, scale = policy_apply(policy_params, batch.next_obs)
+    loc, scale = policy_apply(policy_params, batch.next_obs, obs_norm)
     next_action, next_log_prob = nets.sample_from_noise(loc, scale, eps)
-    next_q = q_apply(target_q_params, batch.next_obs, next_action)
+    next_q = q_apply(target_q_params, batch.next_obs, next_action, obs_norm)
     next_v = jnp.min(next_q, axis=-1) - alpha * next_log_prob
     target = jax.lax.stop_gradient(
         reward_scale * batch.reward + batch.discount * gamma * next_v
     )
-    q = q_apply(q_params, batch.obs, batch.action)
+    q = q_apply(q_params, batch.obs, batch.action, obs_norm)
     loss = 0.5 * jnp.sum(jnp.mean(jnp.square(q - target[..., None]), axis=0))
     return loss, {"q": jnp.mean(q), "target_q": jnp.mean(target)}
 
-  def actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0):
+  def actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0, obs_norm=None):
     alpha = jnp.exp(log_alpha)
-    loc, scale = policy_apply(policy_params, obs)
+    loc, scale = policy_apply(policy_params, obs, obs_norm)
     action, log_prob = nets.sample_from_noise(loc, scale, eps)
-    min_q = jnp.min(q_apply(q_params, obs, action), axis=-1)
+    min_q = jnp.min(q_apply(q_params, obs, action, obs_norm), axis=-1)
     loss = jnp.mean(alpha * log_prob - min_q)
     if actor_regularizer is not None:
-      reg = actor_regularizer(policy_params, obs)
+      # the statistics only when there are some: regularisers of raw-observation runs take two arguments
+      reg = actor_regularizer(policy_params, obs, *(() if obs_norm is None else (obs_norm,)))
       loss = loss + reg_scale * reg
     else:
       reg = jnp.zeros((), loss.dtype)
@@ -255,6 +260,9 @@ class SACState:
   log_alpha: jax.Array  # float32 scalar
   alpha_opt_state: Any
   update_steps: jax.Array  # int32, gradient updates done
+  # Running observation statistics (hdt.agents.normalizer) the networks apply, updated by the training
+  # loop from collected observations, never by gradients; None (no leaves) without normalisation.
+  obs_norm: Any = None
 
 
 # The SACConfig fields that change no array shape: ``make_update``'s update takes them as an
@@ -279,6 +287,8 @@ def make_optimizers(config: SACConfig, hyper: dict | None = None):
 
 
 def init_sac_state(networks: nets.SACNetworks, config: SACConfig, key: jax.Array) -> SACState:
+  """Fresh parameters, optimiser states and temperature; empty observation statistics when
+  ``config.normalize_observations``."""
   k_pi, k_q = jax.random.split(key)
   policy_params = networks.policy_init(k_pi)
   q_params = networks.q_init(k_q)
@@ -293,6 +303,7 @@ def init_sac_state(networks: nets.SACNetworks, config: SACConfig, key: jax.Array
       log_alpha=log_alpha,
       alpha_opt_state=a_opt.init(log_alpha),
       update_steps=jnp.zeros((), jnp.int32),
+      obs_norm=normalizer.init(networks.observation_size) if config.normalize_observations else None,
   )
 
 
@@ -335,13 +346,13 @@ def make_update(
 
     (c_loss, c_aux), g = critic_grad(
         state.q_params, state.target_q_params, state.policy_params, state.log_alpha, batch,
-        eps_critic,
+        eps_critic, state.obs_norm,
     )
     upd, q_opt_state = q_opt.update(g, state.q_opt_state, state.q_params)
     q_params = optax.apply_updates(state.q_params, upd)
 
     (a_loss, a_aux), g = actor_grad(
-        state.policy_params, q_params, state.log_alpha, batch.obs, eps_actor, reg_scale
+        state.policy_params, q_params, state.log_alpha, batch.obs, eps_actor, reg_scale, state.obs_norm
     )
     upd, policy_opt_state = pi_opt.update(g, state.policy_opt_state, state.policy_params)
     policy_params = optax.apply_updates(state.policy_params, upd)
@@ -360,6 +371,7 @@ def make_update(
         log_alpha=log_alpha,
         alpha_opt_state=alpha_opt_state,
         update_steps=state.update_steps + 1,
+        obs_norm=state.obs_norm,
     )
     metrics = {
         "critic_loss": c_loss,

@@ -7,7 +7,7 @@
     keys = seed_keys(range(4))
     ts = jax.jit(jax.vmap(trainer.init))(keys)
     ts, metrics = jax.jit(jax.vmap(trainer.run_chunk), donate_argnums=0)(ts)
-    ev = jax.jit(jax.vmap(trainer.evaluate))(ts.agent.policy_params, eval_keys)
+    ev = jax.jit(jax.vmap(trainer.evaluate))(ts.agent.policy_params, eval_keys, ts.agent.obs_norm)
     ts, out = jax.jit(jax.vmap(trainer.train))(keys)           # everything in one call
 
 (:func:`vmapped` builds and caches exactly these jitted functions), or use :func:`run`, which
@@ -93,12 +93,11 @@ def plugin_init_key(seed_key: jax.Array, index: int) -> jax.Array:
   return plugin_key(jax.random.split(seed_key, 4)[2], index)
 
 
-def _set_obs_norm(agent: SACState, stats) -> SACState:
-  return agent.replace(
-      policy_params=normalizer.with_stats(agent.policy_params, stats),
-      q_params=normalizer.with_stats(agent.q_params, stats),
-      target_q_params=normalizer.with_stats(agent.target_q_params, stats),
-  )
+def saved_params(agent: SACState) -> dict:
+  """What a checkpoint keeps of ``agent``: {"policy", "q"} and, with a normaliser, its statistics
+  beside them as "obs_norm" (:mod:`hdt.agents.normalizer`)."""
+  out = {"policy": agent.policy_params, "q": agent.q_params}
+  return out if agent.obs_norm is None else dict(out, **{normalizer.KEY: agent.obs_norm})
 
 
 NONFINITE = "nonfinite/"  # run_chunk metrics prefix: first non-finite step in the chunk, or -1
@@ -178,9 +177,7 @@ def _normal_from_bits(bits: jax.Array) -> jax.Array:
 def make_networks(env, config: SACConfig) -> nets.SACNetworks:
   """The SAC networks make_train builds for ``env`` and ``config`` (pure functions; cheap)."""
   return nets.make_sac_networks(
-      int(env.observation_size), int(env.action_size), config.hidden_sizes, config.critic_sizes,
-      normalize_observations=config.normalize_observations,
-  )
+      int(env.observation_size), int(env.action_size), config.hidden_sizes, config.critic_sizes)
 
 
 def make_train(
@@ -217,7 +214,8 @@ def make_train(
   plugins = plugin_lib.check(([legacy] if legacy else []) + list(plugins))
   n_envs, batch_size = config.num_envs, config.batch_size
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
-  deterministic_policy = lambda params, obs: nets.deterministic_action(networks.policy_apply(params, obs)[0])
+  deterministic_policy = lambda obs_norm: lambda params, obs: nets.deterministic_action(
+      networks.policy_apply(params, obs, obs_norm)[0])
   spec = replay_lib.make_transition_spec(obs_size, act_size)
   extras_fn = next((p.transition_extras for p in plugins if p.transition_extras), None)
   if extras_fn is not None:
@@ -255,8 +253,8 @@ def make_train(
     reg = None
     if reg_plugin is not None:
       p, keys = reg_plugin
-      def reg(params, obs):
-        return p.regularizer(plugin_lib.own(aux, keys), params, obs)
+      def reg(params, obs, *obs_norm):  # obs_norm: only with a normaliser (hdt.agents.sac)
+        return p.regularizer(plugin_lib.own(aux, keys), params, obs, *obs_norm)
       reg.metric_name = p.name if p.name == "kl" else "regularizer"  # logged as kl / kl_weight
     return make_update(networks, config, act_size, actor_regularizer=reg,
                        reward_fn=plugin_reward if rewarding else None)
@@ -323,7 +321,7 @@ def make_train(
     bits = jax.random.bits(k_bits, (n_act_bits + G * n_upd_bits,), jnp.uint32)
     act_bits, upd_bits = bits[:n_act_bits].reshape(2, n_envs, A), bits[n_act_bits:]
     obs = ts.env_state.obs
-    loc, scale = networks.policy_apply(ts.agent.policy_params, obs)
+    loc, scale = networks.policy_apply(ts.agent.policy_params, obs, ts.agent.obs_norm)
     policy_action, _ = nets.sample_from_noise(loc, scale, _normal_from_bits(act_bits[0]))
     random_action = 2.0 * _uniform01_from_bits(act_bits[1]) - 1.0
     warmup = ts.env_steps < config.learning_starts
@@ -332,10 +330,8 @@ def make_train(
     nxt = v_step(ts.env_state, action)
     f32 = lambda x: jnp.asarray(x, jnp.float32)
     agent = ts.agent
-    if normalizer.has(agent.policy_params):
-      # The observation normaliser sees every collected observation before the updates use it; the
-      # policy, critic and target critic share one copy of the statistics.
-      agent = _set_obs_norm(agent, normalizer.update(agent.policy_params[normalizer.KEY], obs))
+    if agent.obs_norm is not None:  # it sees every collected observation before the updates use it
+      agent = agent.replace(obs_norm=normalizer.update(agent.obs_norm, obs))
     transitions = Transition(
         obs=f32(obs), action=f32(action), reward=f32(nxt.reward), next_obs=f32(nxt.next_obs),
         discount=f32(nxt.discount),
@@ -357,8 +353,6 @@ def make_train(
         agent, jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), metrics_shape)
     )
     agent, upd_metrics = jax.lax.cond(learn, upd, skip, agent)
-    if normalizer.has(agent.policy_params):  # undo the soft update's averaging of the statistics
-      agent = _set_obs_norm(agent, agent.policy_params[normalizer.KEY])
 
     done = f32(nxt.done)
     ep_ret = ts.episode_return + f32(nxt.reward)
@@ -399,10 +393,11 @@ def make_train(
     return ts, metrics
 
   # ---------------------------------------------------------------------------------------------
-  def evaluate(policy_params, key: jax.Array) -> dict:
+  def evaluate(policy_params, key: jax.Array, obs_norm=None) -> dict:
     """Deterministic (tanh(mean)) rollouts of ``num_eval_episodes`` parallel episodes
-    (:func:`hdt.agents.acting.evaluate`)."""
-    return acting.evaluate(env, deterministic_policy, policy_params, key, config.num_eval_episodes)
+    (:func:`hdt.agents.acting.evaluate`); ``obs_norm``: the policy's observation statistics
+    (``SACState.obs_norm``), None without normalisation."""
+    return acting.evaluate(env, deterministic_policy(obs_norm), policy_params, key, config.num_eval_episodes)
 
   # ---------------------------------------------------------------------------------------------
   def train(key: jax.Array, hyper: dict | None = None) -> tuple[TrainState, dict]:
@@ -412,7 +407,7 @@ def make_train(
     ts, chunk_metrics = jax.lax.scan(
         lambda ts, _: run_chunk(ts, hyper), ts, None, length=config.num_chunks
     )
-    return ts, {"train": chunk_metrics, "eval": evaluate(ts.agent.policy_params, k_eval)}
+    return ts, {"train": chunk_metrics, "eval": evaluate(ts.agent.policy_params, k_eval, ts.agent.obs_norm)}
 
   return Trainer(init, run_chunk, evaluate, train, networks, config)
 
@@ -422,7 +417,7 @@ def make_train(
 
 
 class RunResult(NamedTuple):
-  params: dict  # {"policy": ..., "q": ...}, leading axis = seeds
+  params: dict  # saved_params: {"policy", "q"} (+ "obs_norm"), leading axis = seeds
   history: dict  # name -> np.ndarray, leading axis = seeds
   state: TrainState  # final TrainState (leading axis = seeds), for checkpointing / resuming
   best: dict | None = None  # see :func:`update_best`
@@ -434,7 +429,7 @@ BEST_CRITERION = "eval/return"
 
 
 def empty_best(params: dict) -> dict:
-  """The best-so-far record before any evaluation: ``params`` ({"policy", "q"}, seed axis; arrays
+  """The best-so-far record before any evaluation: ``params`` (:func:`saved_params`, seed axis; arrays
   or ShapeDtypeStructs) with ``return`` -inf and ``env_steps`` -1 per seed."""
   n = jax.tree.leaves(params)[0].shape[0]
   return dict(params, **{"return": np.full(n, -np.inf, np.float32), "env_steps": np.full(n, -1, np.int32)})
@@ -484,7 +479,7 @@ def eval_key(seed_key: jax.Array, index: int) -> jax.Array:
 class VmappedFns(NamedTuple):
   init: Callable  # (keys[S]) -> TrainState[S]
   run_chunk: Callable  # TrainState[S] (, hyper[S]) -> (TrainState[S], metrics[S]); donates the state
-  evaluate: Callable  # (policy_params[S], keys[S]) -> metrics[S]
+  evaluate: Callable  # (policy_params[S], keys[S], obs_norm[S] or None) -> metrics[S]
 
 
 @functools.lru_cache(maxsize=16)
@@ -501,7 +496,7 @@ def vmapped(trainer: Trainer, num_seeds: int = 1, hyper: bool = False) -> Vmappe
   return VmappedFns(
       init=jax.jit(over(trainer.init)),
       run_chunk=jax.jit(over(chunk, 2 if hyper else 1), donate_argnums=0),
-      evaluate=jax.jit(over(trainer.evaluate, 2)),
+      evaluate=jax.jit(over(trainer.evaluate, 3)),
   )
 
 
@@ -529,7 +524,7 @@ def _ahead_of_time(fns: VmappedFns, key: str, keys: jax.Array, hyper: dict | Non
       init=cache.compiled(fns.init, key + "|init", lambda: (keys_a,)),
       run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
       evaluate=cache.compiled(fns.evaluate, key + "|evaluate",
-                              lambda: (ts_a().agent.policy_params, keys_a)),
+                              lambda: (ts_a().agent.policy_params, keys_a, ts_a().agent.obs_norm)),
   )
 
 
@@ -642,14 +637,14 @@ def run(
   t_offset = float(hist["walltime"][-1].max()) if hist.get("walltime") else 0.0
 
   def current_params():
-    return {"policy": ts.agent.policy_params, "q": ts.agent.q_params}
+    return saved_params(ts.agent)
 
   best = initial_best
 
   def evaluate(index, step):
     nonlocal best
     k = jax.vmap(eval_key, in_axes=(0, None))(keys, index)
-    ev = sharding_lib.to_host(eval_fn(ts.agent.policy_params, k))
+    ev = sharding_lib.to_host(eval_fn(ts.agent.policy_params, k, ts.agent.obs_norm))
     ev = {f"eval/{name}": np.asarray(v) for name, v in ev.items()}
     ev["eval/env_steps"] = np.full(n_runs, step)
     for name, v in ev.items():
@@ -682,5 +677,5 @@ def run(
       progress_fn(step, m)
 
   history = {k: np.stack(v, axis=1) for k, v in hist.items()}  # (seeds, records, ...)
-  params = {"policy": ts.agent.policy_params, "q": ts.agent.q_params}
+  params = saved_params(ts.agent)
   return RunResult(params=params, history=history, state=ts, best=best)

@@ -9,7 +9,8 @@ fields) is kept verbatim in ``extra`` so that a round trip writes the same file.
 
 Every hand-off between levels is checked by :meth:`PolicyCard.compatible_with`, the one place that
 words those errors. The card builds its env (:meth:`PolicyCard.make_env`, :meth:`PolicyCard.high_env`)
-and its deterministic policy function (:meth:`PolicyCard.policy_fn`).
+and its deterministic policy function (:meth:`PolicyCard.policy_fn`), which applies the observation
+statistics saved beside the policy's parameters (``params["obs_norm"]``, if it was trained with them).
 """
 
 from __future__ import annotations
@@ -65,10 +66,12 @@ class ObsLayout:
     return cls(tuple(int(i) for i in d.get("hl_relative", ())), bool(d.get("hl_absolute", True)))
 
 
-def low_policy_fn(hidden_sizes, obs_size: int, action_size: int) -> Callable:
-  """Deterministic action of a saved SAC policy: tanh of the pre-tanh mean."""
+def low_policy_fn(hidden_sizes, obs_size: int, action_size: int, obs_norm=None) -> Callable:
+  """``fn(params, obs)``: deterministic action of a saved SAC policy, tanh of the pre-tanh mean, with
+  the observation statistics ``obs_norm`` it was trained with (None: raw observations), as brax's
+  ``make_inference_fn``."""
   net = nets.make_sac_networks(obs_size, action_size, tuple(hidden_sizes))
-  return lambda params, obs: nets.deterministic_action(net.policy_apply(params, obs)[0])
+  return lambda params, obs: nets.deterministic_action(net.policy_apply(params, obs, obs_norm)[0])
 
 
 def _frozen(d: Mapping | None) -> Mapping:
@@ -189,9 +192,10 @@ class PolicyCard:
     return dataclasses.replace(self, **kw)
 
   # --- what it builds ---------------------------------------------------------------------------
-  def policy_fn(self) -> Callable:
-    """``fn(params, obs) -> action``: the deterministic action of this card's policy network."""
-    return low_policy_fn(self.hidden_sizes, self.obs_size, self.action_size)
+  def policy_fn(self, obs_norm=None) -> Callable:
+    """``fn(params, obs) -> action``: the deterministic action of this card's policy network;
+    ``obs_norm``: the statistics saved beside its parameters (``params.get("obs_norm")``)."""
+    return low_policy_fn(self.hidden_sizes, self.obs_size, self.action_size, obs_norm)
 
   def make_env(self, task: str | None = None, backend: str = "auto", **overrides):
     """The env of a flat policy (an LL on reach, or a Full policy) on ``task`` (default: its own),
@@ -200,8 +204,9 @@ class PolicyCard:
     return make(self.agent, task or self.task, backend=backend, **dict(self.env_overrides or {}) | overrides)
 
   def high_env(self, low_params, task: str, backend="auto", k=None, hl_horizon=None, record=False,
-               delta_max=None, **task_overrides) -> HighLevelEnv:
-    """The HL env of ``task`` over this LL (``low_params``: its policy parameters). The inner env's
+               delta_max=None, low_obs_norm=None, **task_overrides) -> HighLevelEnv:
+    """The HL env of ``task`` over this LL (``low_params``: its policy parameters, ``low_obs_norm``:
+    the observation statistics saved beside them, if any). The inner env's
     own time limit is disabled: the HL env counts HL steps. Only the LL's morphology options carry
     over; its reach-task options (terrain=...) do not belong to the HL task."""
     if task not in TASKS:
@@ -221,7 +226,7 @@ class PolicyCard:
       raise ckpt.CheckpointError(
           f"the LL observes {self.obs_size} numbers but {self.agent} on {task} gives "
           f"{inner.obs_lo_size} + {self.goal_dim * inner.task.ll_points}: was it trained with other options (e.g. rangefinders for steps)?")
-    return HighLevelEnv(inner, self.policy_fn(), low_params, k=self.k if k is None else k,
+    return HighLevelEnv(inner, self.policy_fn(low_obs_norm), low_params, k=self.k if k is None else k,
                         hl_horizon=hl_horizon, record=record,
                         delta_max=self.delta_max if delta_max is None else delta_max)
 
@@ -293,7 +298,7 @@ class PolicyCard:
 
   @property
   def normalizer(self) -> bool:
-    """Whether the saved policy carries an observation normaliser (recorded by the SAC config)."""
+    """Whether the saved policy has observation statistics beside it (recorded by the SAC config)."""
     return self.normalize_observations
 
   def check_env(self, env, task: str) -> None:
@@ -326,11 +331,12 @@ def load_card(run: str | Path, seed_index: int = 0, which: str = "final"):
 
 
 def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):
-  """(params, meta, policy_fn) of a saved LL, checked to be a low level; ``which``: its "final"
+  """(params, meta, policy_fn) of a saved LL (policy_fn applies its saved observation statistics),
+  checked to be a low level; ``which``: its "final"
   parameters or its "best" evaluation's (see :func:`ckpt.load`, ``meta["params"]`` says which)."""
   params, meta = ckpt.load(low, seed_index, which)
   check_level(meta.get("level"), low, "low")
   card = PolicyCard.from_json(meta, Path(low) / f"seed_{seed_index}" / "meta.json").replace(source=str(low))
   card.compatible_with(None, "low")
   check_recorded(meta)
-  return params, meta, card.policy_fn()
+  return params, meta, card.policy_fn(params.get(ckpt.NORM))

@@ -4,7 +4,9 @@ A run directory holds ``config.json``, ``meta.json``, ``metrics.csv`` and one su
 (``seed_0``, ``seed_1``, ...), each with ``params/`` (orbax, the final parameters), ``best/params/``
 (those of the best periodic evaluation; ``meta["best"]`` says which env step and return) and its
 own ``meta.json``, and
-``state/``: the resumable training state (``arrays/`` orbax, ``state.json``). Each of these
+``state/``: the resumable training state (``arrays/`` orbax, ``state.json``). A normalised run's
+observation statistics are saved beside the parameters (``params["obs_norm"]`` next to "policy" and
+"q"); checkpoints written when they lived inside the policy and critics are split on load. Each of these
 directories is written under a temporary name and renamed into place, so a save killed at any point
 (tested with SIGKILL) leaves the previous version loadable. Metadata carries ``format_version``;
 another version, damaged files, or a checkpoint of the wrong kind raise :class:`CheckpointError`
@@ -233,7 +235,19 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
     raise CheckpointError(f"corrupt checkpoint parameters in {path} ({type(e).__name__}: "
                           f"{e}); re-run training, or restore the directory from a backup") from e
   steps = meta["best"].get("env_steps") if use == "best" else (meta.get("sac") or {}).get("total_env_steps")
-  return params, dict(meta, params=use, params_env_steps=steps)
+  return split_obs_norm(params), dict(meta, params=use, params_env_steps=steps)
+
+
+NORM = "obs_norm"  # hdt.agents.normalizer.KEY: the statistics beside "policy" and "q"
+
+
+def split_obs_norm(params: dict) -> dict:
+  """``params`` with the observation statistics beside the networks: checkpoints written before they
+  were (``params["policy"]["obs_norm"]``, copies in the critics) are converted; others are unchanged."""
+  if not (isinstance(params, dict) and isinstance(params.get("policy"), dict) and NORM in params["policy"]):
+    return params
+  strip = lambda v: {k: x for k, x in v.items() if k != NORM} if isinstance(v, dict) else v
+  return dict({k: strip(v) for k, v in params.items()}, **{NORM: params["policy"][NORM]})
 
 
 def params_label(metas: list[dict]) -> str:
@@ -342,20 +356,50 @@ def _check_fits(d: Path, got: list, template) -> tuple[Any, list]:
   return treedef, want
 
 
+# Where a state saved when the statistics lived inside the networks kept them (keystr prefixes, old ->
+# new); their other copies (critics, target critics, Adam moments) are dropped on load.
+_LEGACY_NORM = ((".agent.policy_params['obs_norm']", ".agent.obs_norm"),
+                (".aux['kl_reference']['obs_norm']", ".aux['kl_reference_obs_norm']"),
+                ("['policy']['obs_norm']", "['obs_norm']"))
+
+
+def _legacy_order(got: list, want: list) -> list[int] | None:
+  """For a state saved with the statistics inside the networks (leaf specs ``got``), the saved index of
+  each leaf of ``want``; None if that renaming does not make them fit."""
+  if not any(f"['{NORM}']" in g[0] for g in got):
+    return None
+  index = {}
+  for i, (name, shape, dtype) in enumerate(got):
+    new = next((n + name[len(o):] for o, n in _LEGACY_NORM if name.startswith(o)), None)
+    if new is not None or f"['{NORM}']" not in name:
+      index[new or name] = (i, [new or name, shape, dtype])
+  order = [index.get(w[0], (None, None)) for w in want]
+  return [i for i, _ in order] if all(spec == w for (_, spec), w in zip(order, want)) else None
+
+
 def load_state(run_dir: str | Path, template: Any, best_template: Any = None) -> SavedState:
   """(tree, history, info, best) saved by :func:`save_state`; ``tree`` has the structure of
   ``template`` (e.g. ``jax.eval_shape`` of the trainer's init), whose leaf names, shapes and dtypes
   must match; so must ``best_template``'s, if given and a best record was saved (else best=None)."""
   info = load_state_info(run_dir)
   d = _resolve(state_dir(Path(run_dir).resolve()))
-  treedef, want = _check_fits(d, info.get("leaves", []), template)
+
+  def fits(got, tree):  # (treedef, leaf specs, saved index per leaf)
+    legacy = _legacy_order(got, [[jax.tree_util.keystr(p), list(x.shape), str(np.dtype(x.dtype))]
+                                 for p, x in jax.tree_util.tree_flatten_with_path(tree)[0]])
+    if legacy is not None:
+      return jax.tree_util.tree_structure(tree), [got[i] for i in legacy], legacy
+    treedef, want = _check_fits(d, got, tree)
+    return treedef, want, list(range(len(want)))
+
+  treedef, want, state_idx = fits(info.get("leaves", []), template)
   with_best = best_template is not None and "best_leaves" in info
-  best_def, best_want = _check_fits(d, info["best_leaves"], best_template) if with_best else (None, [])
+  best_def, best_want, best_idx = fits(info["best_leaves"], best_template) if with_best else (None, [], [])
   try:
     arrays = ocp.PyTreeCheckpointer().restore(d / "arrays")
-    group = lambda name, n: [np.asarray(arrays[name][f"{i:05d}"]) for i in range(n)]
-    state, best = group("state", len(want)), group("best", len(best_want))
-    hist = dict(zip([h[0] for h in info.get("history", [])], group("history", len(info.get("history", [])))))
+    group = lambda name, idx: [np.asarray(arrays[name][f"{i:05d}"]) for i in idx]
+    state, best = group("state", state_idx), group("best", best_idx)
+    hist = dict(zip([h[0] for h in info.get("history", [])], group("history", range(len(info.get("history", []))))))
   except Exception as e:  # orbax raises several types for damaged files
     raise CheckpointError(f"corrupt training state in {d / 'arrays'} ({type(e).__name__}: {e}); "
                           f"delete {d} to start over, or restore it from a backup") from e

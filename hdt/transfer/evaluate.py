@@ -28,6 +28,8 @@ class Policy:
   low_meta: dict | None = None
   delta_max: float | None = None
   uniform_actions: bool = False  # a random baseline: uniform actions in [-1, 1] instead of the policy's
+  obs_norm: Any = None  # observation statistics saved beside params (leading seed axis), or None
+  low_obs_norm: Any = None  # the same for low_params
 
   @property
   def agent(self) -> str:
@@ -102,7 +104,7 @@ class _UniformActions:
 def load_policy(run: str | Path, which: str = "final") -> Policy:
   """A flat policy run; ``which``: its "final" parameters or its "best" evaluation's."""
   params, metas = _load(run, which, "which")
-  return Policy(params["policy"], metas[0])
+  return Policy(params["policy"], metas[0], obs_norm=params.get(ckpt.NORM))
 
 
 def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str = "final",
@@ -123,17 +125,20 @@ def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str =
   n = len(hmetas) if own is not None else max(len(hmetas), len(lmetas))
   ll_idx = np.full(n, own) if own is not None else np.arange(n) % len(lmetas)
   take = lambda tree, idx: jax.tree.map(lambda x: x[idx], tree)
-  return Policy(take(hp["policy"], np.arange(n) % len(hmetas)), hm, take(lp["policy"], ll_idx), lm, dm)
+  hi_idx = np.arange(n) % len(hmetas)
+  return Policy(take(hp["policy"], hi_idx), hm, take(lp["policy"], ll_idx), lm, dm,
+                obs_norm=take(hp.get(ckpt.NORM), hi_idx), low_obs_norm=take(lp.get(ckpt.NORM), ll_idx))
 
 
 def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, record=False,
-             **task_overrides):
+             low_obs_norm=None, **task_overrides):
   card = policy.card
   task = task or card.task
   if policy.low_meta is None:  # flat policy: LL on reach, or a Full policy on its task
     env = card.make_env(task, backend, **task_overrides)
   else:
     env = policy.low_card.high_env(low_params, task, backend, record=record, delta_max=policy.delta_max,
+                                   low_obs_norm=low_obs_norm,
                                    **(card.obs_layout.task_options() | task_overrides))
   card.check_env(env, task)
   return env
@@ -153,20 +158,23 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   if idx.ndim != 1 or idx.size == 0 or not np.issubdtype(idx.dtype, np.integer) or \
       idx.min() < 0 or idx.max() >= n:
     raise ValueError(f"seeds={seeds!r}: pick seed indices of the policy, in 0..{n - 1}")
-  act = policy.card.policy_fn()
 
-  def one(params, low_params, k):
-    env = _env_for(policy, task, backend, low_params, **task_overrides)
+  def one(params, norm, low_params, low_norm, k):
+    env = _env_for(policy, task, backend, low_params, low_obs_norm=low_norm, **task_overrides)
+    act = policy.card.policy_fn(norm)
     return acting.evaluate(_UniformActions(env) if policy.uniform_actions else env, act, params, k, episodes)
 
-  first_low = None if policy.low_params is None else jax.tree.map(lambda x: x[0], policy.low_params)
-  check_memory(len(idx) * episodes * 4 * state_bytes(_env_for(policy, task, backend, first_low, **task_overrides)),
+  first = lambda tree: jax.tree.map(lambda x: x[0], tree)
+  first_low = None if policy.low_params is None else first(policy.low_params)
+  check_memory(len(idx) * episodes * 4 * state_bytes(_env_for(policy, task, backend, first_low,
+                                                               low_obs_norm=first(policy.low_obs_norm),
+                                                               **task_overrides)),
                f"evaluating {len(idx)} seeds x {episodes} episodes in parallel (env states, ~4 copies)",
                "lower the number of episodes or seeds")
-  params = jax.tree.map(lambda x: x[idx], policy.params)
-  low = None if policy.low_params is None else jax.tree.map(lambda x: x[idx], policy.low_params)
+  pick = lambda tree: jax.tree.map(lambda x: x[idx], tree)  # None stays None
   keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.PRNGKey(key), i))(jnp.asarray(idx))
-  out = jax.device_get(jax.jit(jax.vmap(one))(params, low, keys))
+  out = jax.device_get(jax.jit(jax.vmap(one))(pick(policy.params), pick(policy.obs_norm), pick(policy.low_params),
+                                              pick(policy.low_obs_norm), keys))
   per_seed = {"return": np.asarray(out["return"])}
   if "success_max" in out:
     per_seed["success"] = np.asarray(out["success_max"])
@@ -205,10 +213,10 @@ def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key
   block xy, and each sub-goal, for top-down plots."""
   if policy.low_meta is None:
     raise ValueError("trajectory() needs a composed HL + LL policy (see compose)")
-  params = jax.tree.map(lambda x: x[seed_index], policy.params)
-  low = jax.tree.map(lambda x: x[seed_index], policy.low_params)
-  env = _env_for(policy, task, backend, low, record=True, **task_overrides)
-  apply = policy.card.policy_fn()
+  at = lambda tree: jax.tree.map(lambda x: x[seed_index], tree)
+  params, low = at(policy.params), at(policy.low_params)
+  env = _env_for(policy, task, backend, low, record=True, low_obs_norm=at(policy.low_obs_norm), **task_overrides)
+  apply = policy.card.policy_fn(at(policy.obs_norm))
 
   def run(params, key):
     s = env.reset(key)

@@ -23,8 +23,8 @@ Seeds: HL seed ``i`` starts from A's HL seed ``i % n_A`` (its final parameters, 
 (default 0) for every seed, by default its best evaluation's parameters (KLSAC ``setup_model``:
 ``load_from_name(kl_policy, best=True)``; final when the run kept no best), kept per seed in the training state
 (:func:`hdt.agents.kl.kl_plugin`). Both the start from A and the KL term are plug-ins of one trainer
-(:mod:`hdt.agents.plugins`). A's observation normaliser, if it has one, travels with its policy and
-critics.
+(:mod:`hdt.agents.plugins`). A's observation statistics, if it has some (saved beside its
+parameters), are B's starting statistics, and the KL reference applies its own.
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from hdt.agents import train as sac_train
-from hdt.agents import normalizer
 from hdt.agents.kl import MODES, kl_plugin
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig, make_optimizers
@@ -58,7 +57,7 @@ REFERENCE_PARAMS = "best"
 
 
 def load_high_sac(high: str | Path, which: str = "final"):
-  """(params stacked over A's seeds: "policy", "q" and, when saved, "target_q", "log_alpha"; metas)
+  """(params stacked over A's seeds: "policy", "q" and, when saved, "target_q", "log_alpha", "obs_norm"; metas)
   of a saved HL, checked to be a high level; ``which``: its "final" parameters (as the authors'
   finetune scripts) or its "best" evaluation's."""
   params, metas = ckpt.load_all(high, which)
@@ -81,13 +80,17 @@ def _check_fits(name, loaded, fresh, high):
 
 def start_from_a(agent, a_params, config, high, init: str = "sac"):
   """``agent`` (one seed's fresh SACState) with A's SAC of one seed (``a_params``, no seed axis) put
-  in: the policy, and with ``init="sac"`` also both critics, target critics and log_alpha (fresh
-  Adam states for all)."""
+  in: the policy and its observation statistics, and with ``init="sac"`` also both critics, target
+  critics and log_alpha (fresh Adam states for all)."""
   f32 = lambda tree: jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), tree)
   pi_opt, q_opt, a_opt = make_optimizers(config)
   policy = f32(a_params["policy"])
   _check_fits("policy", policy, agent.policy_params, high)
   agent = agent.replace(policy_params=policy, policy_opt_state=pi_opt.init(policy))
+  if agent.obs_norm is not None:  # the statistics the policy was trained with
+    norm = f32(a_params[ckpt.NORM])
+    _check_fits("observation statistics", norm, agent.obs_norm, high)
+    agent = agent.replace(obs_norm=norm)
   if init == "policy":
     return agent
   q = f32(a_params["q"])
@@ -107,7 +110,7 @@ def start_plugin(a_params, pick, seed_list, config, high, init: str = "sac") -> 
   if init == "sac" and missing:
     print(f"warning: {high} has no saved {' or '.join(missing)} (an HL saved before they were kept): "
           f"finetuning starts from A's critics as targets and alpha={config.init_alpha}", file=sys.stderr)
-  wanted = ("policy",) if init == "policy" else ("policy", "q", "target_q", "log_alpha")
+  wanted = ("policy", ckpt.NORM) if init == "policy" else ("policy", "q", "target_q", "log_alpha", ckpt.NORM)
   per_seed = {k: jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[pick], jnp.float32), a_params[k])
               for k in wanted if k in a_params}
   keys = jax.vmap(lambda k: sac_train.plugin_init_key(k, 0))(sac_train.seed_keys(seed_list))
@@ -172,22 +175,21 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
                      f"beta decays to 0)")
   ckpt.check_which(reference_params, "reference_params")
   a_params, a_metas = load_high_sac(high, INIT_PARAMS)
-  a_policy = a_params["policy"]
   am = a_metas[0]
   n_a = len(a_metas)
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
   ref_meta = a_metas[reference_seed]
   if kl > 0 and reference_params != INIT_PARAMS:
-    ref_policy, ref_metas = load_high(high, reference_params)
+    ref_params, ref_metas = load_high_sac(high, reference_params)
     ref_meta = ref_metas[reference_seed]
   else:
-    ref_policy = a_policy
+    ref_params = a_params
 
   card_a = PolicyCard.from_json(am, high)
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params,
                                    **(card_a.obs_layout.task_options() | task_overrides))
-  a_norm = normalizer.has(a_policy)  # A's observation normaliser travels with its policy
+  a_norm = ckpt.NORM in a_params  # A's observation statistics, saved beside its policy
   if config is None:
     config = configs.high_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm)
   card_b = lambda config: PolicyCard.from_env(env, "high", config, low=low_rec, task_overrides=task_overrides)
@@ -206,9 +208,10 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
   pick = np.arange(n) % n_a
   plugins = [start_plugin(a_params, pick, seed_list, config, high, init)]
   if kl > 0:
-    reference = jax.tree.map(lambda x: x[reference_seed], ref_policy)
+    reference = jax.tree.map(lambda x: x[reference_seed], ref_params["policy"])
+    reference_norm = jax.tree.map(lambda x: x[reference_seed], ref_params.get(ckpt.NORM))
     policy_apply = sac_train.make_networks(env, config).policy_apply  # pure: the trainer's own is the same
-    plugins.append(kl_plugin(policy_apply, reference, kl, anneal_steps, mode, mean_only))
+    plugins.append(kl_plugin(policy_apply, reference, kl, anneal_steps, mode, mean_only, reference_norm))
 
   meta = dict(card_b(config).to_json(), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
                                       params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),

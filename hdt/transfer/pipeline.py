@@ -91,10 +91,11 @@ def hl_obs_layout(meta: dict) -> dict:
 
 
 def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None, hl_horizon=None,
-                   record=False, delta_max=None, **task_overrides) -> HighLevelEnv:
+                   record=False, delta_max=None, low_obs_norm=None, **task_overrides) -> HighLevelEnv:
   """The HL env of ``task`` over an LL described by its checkpoint metadata
   (:meth:`hdt.transfer.card.PolicyCard.high_env`)."""
   return PolicyCard.from_json(low_meta).high_env(low_params, task, backend, k, hl_horizon, record, delta_max,
+                                                 low_obs_norm,
                                                  **task_overrides)
 
 
@@ -112,7 +113,8 @@ def high_env_with_low(task: str, low: str | Path, low_seed: int = 0, backend="au
                       low_params: str = LOW_PARAMS, **kw) -> tuple[HighLevelEnv, dict]:
   """(HL env of ``task`` over the frozen LL saved in ``low``, :func:`low_record` of that LL)."""
   params, meta, _ = load_low(low, low_seed, ckpt.check_which(low_params, "low_params"))
-  return build_high_env(meta, params["policy"], task, backend, **kw), low_record(low, low_seed, meta)
+  return (build_high_env(meta, params["policy"], task, backend, low_obs_norm=params.get(ckpt.NORM), **kw),
+          low_record(low, low_seed, meta))
 
 
 def high_env(task: str, low: str | Path, low_seed: int = 0, backend="auto", low_params: str = LOW_PARAMS,

@@ -266,7 +266,7 @@ def _seed_best(best: dict | None, i: int) -> tuple[dict, dict] | None:
     return None
   info = dict(env_steps=int(best["env_steps"][i]), eval_return=float(best["return"][i]),
               criterion=f"highest mean {sac_train.BEST_CRITERION} over the periodic evaluations")
-  return {k: jax.tree.map(lambda x: x[i], best[k]) for k in ("policy", "q")}, info
+  return {k: jax.tree.map(lambda x: x[i], v) for k, v in best.items() if k not in ("return", "env_steps")}, info
 
 
 
@@ -336,7 +336,7 @@ def _resume(source: Path, trainer, info: dict):
   template = jax.eval_shape(sac_train.vmapped(trainer).init,
                             sac_train.seed_keys(info["seeds"]))
   # a state saved before best-of-evaluation selection has no best record: it restarts empty
-  best_template = sac_train.empty_best({"policy": template.agent.policy_params, "q": template.agent.q_params})
+  best_template = sac_train.empty_best(sac_train.saved_params(template.agent))
   best_template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype), best_template)
   saved = ckpt.load_state(source, template, best_template)
   return jax.device_put(saved.tree), saved.history, saved.best
