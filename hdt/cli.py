@@ -291,7 +291,10 @@ def _run_kw(args) -> dict:
   return {"resume": True} if args.resume else {"overwrite": True} if args.overwrite else {}
 
 
-def _sac_config(args, level: str, agent=None, task=None, **extra) -> SACConfig:
+def sac_config(args, level: str, agent=None, task=None, **extra) -> SACConfig:
+  """The SACConfig a parsed training command (``build_parser().parse_args(...)``) asks for: the
+  ``--preset``'s config of ``level`` for ``agent`` / ``task``, with ``extra`` and the command's
+  SAC options applied."""
   return configs.config(level, args.preset, agent=agent, task=task, **(extra | _overrides(args, SACConfig, "")))
 
 
@@ -333,7 +336,7 @@ def cmd_train(args) -> int:
   seeds = _seeds(args)
   if args.level == "low":
     _check_agent_task(args.agent)
-    cfg = _sac_config(args, "low", args.agent)
+    cfg = sac_config(args, "low", args.agent)
     out = _out_dir(args, f"low-{_label(args.agent)}")
     res = pipeline.train_low(args.agent, cfg, seeds=seeds, out=out, backend=args.backend, quiet=args.quiet,
                              **_run_kw(args), **overrides)
@@ -343,14 +346,14 @@ def cmd_train(args) -> int:
     if args.k is not None and args.k <= 0:
       raise CLIError(f"--k {args.k}: give a positive number of LL steps per HL action")
     overrides = configs.task_options(args.preset, args.task) | overrides
-    cfg = _sac_config(args, "high", task=args.task)
+    cfg = sac_config(args, "high", task=args.task)
     out = _out_dir(args, f"high-{args.task}-{_label(low_meta['agent'])}")
     res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
                               low_seed=args.low_seed, k=args.k, quiet=args.quiet, low_params=args.low_params,
                               **_run_kw(args), **overrides)
   else:
     _check_agent_task(args.agent, args.task)
-    cfg = _sac_config(args, "full", args.agent, args.task)
+    cfg = sac_config(args, "full", args.agent, args.task)
     out = _out_dir(args, f"full-{_label(args.agent)}-{args.task}")
     res = pipeline.train_full(args.agent, args.task, cfg, seeds=seeds, out=out, backend=args.backend,
                               quiet=args.quiet, **_run_kw(args), **overrides)
@@ -365,7 +368,7 @@ def cmd_align(args) -> int:
   imitate_meta = load_low(args.imitate)[1]  # fails early, with the checkpoint's own message
   check_env_overrides(_key_values(args.set, "--set"), args.agent, "reach")
   disc = DiscConfig(**_overrides(args, DiscConfig, "disc_"))
-  cfg = _sac_config(args, "low", args.agent)
+  cfg = sac_config(args, "low", args.agent)
   out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate_meta['agent'])}")
   res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
                   backend=args.backend, quiet=args.quiet, imitate_params=args.imitate_params,
@@ -381,7 +384,7 @@ def cmd_finetune(args) -> int:
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
   hm = ckpt.require(ckpt.load_meta(args.high), {"agent": str, "hidden_sizes": list}, args.high)
   lm = load_low(args.low, args.low_seed)[1]
-  cfg = _sac_config(args, "high", task=args.task, hidden_sizes=tuple(hm["hidden_sizes"]))
+  cfg = sac_config(args, "high", task=args.task, hidden_sizes=tuple(hm["hidden_sizes"]))
   out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{args.kl:g}")
   res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
@@ -392,9 +395,10 @@ def cmd_finetune(args) -> int:
   return _finish(res, args)
 
 
-def _named(items) -> dict[str, Path]:
-  """RUN or NAME=RUN; an existing path is always a RUN (sweep run directories contain '='), and NAME
-  ends at the first '='."""
+def named_runs(items) -> dict[str, Path]:
+  """``{name: run directory}`` of ``--high`` / ``--low`` arguments, each RUN (named by its directory)
+  or NAME=RUN; an existing path is always a RUN (sweep run directories contain '='), and NAME ends at
+  the first '='."""
   out = {}
   for it in items:
     name, sep, run = it.partition("=")
@@ -417,7 +421,7 @@ def cmd_eval(args) -> int:
   out = _out_dir(args, "eval", kind="eval", reuse=True)  # evaluations add files to an eval directory
   if args.episodes <= 0:
     raise CLIError(f"--episodes {args.episodes}: give a positive number of episodes")
-  highs, lows = _named(args.high), _named(args.low)
+  highs, lows = named_runs(args.high), named_runs(args.low)
   if args.policy is not None:
     if highs or lows:
       raise CLIError("--policy evaluates a flat policy: do not combine it with --high/--low")
@@ -530,7 +534,7 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
   for values in itertools.product(*grid.values()):
     point = dict(zip(grid, values))
     names.append(",".join(f"{k_}={v}" for k_, v in point.items()))
-    runs.append((_sac_config(args, args.level, args.agent, args.task, **point),
+    runs.append((sac_config(args, args.level, args.agent, args.task, **point),
                  root / names[-1].replace("/", "_")))
   stage = {"low": dict(agent=args.agent), "high": dict(task=args.task, low=args.low),
            "full": dict(agent=args.agent, task=args.task)}[args.level]

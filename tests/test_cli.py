@@ -362,12 +362,12 @@ def test_eval_and_resume_refuse_an_hl_whose_ll_changed(runs, tmp_path, capsys):
 
 
 def test_named_runs_accept_paths_with_equals(tmp_path):
-  from hdt.cli import _named
+  from hdt.cli import named_runs
   sweep_run = tmp_path / "sweep" / "actor_lr=0.001,batch_size=16"
   sweep_run.mkdir(parents=True)
-  assert _named([str(sweep_run)]) == {sweep_run.name: sweep_run}
-  assert _named([f"pm={sweep_run}"]) == {"pm": sweep_run}
-  assert _named(["pm=runs/x"]) == {"pm": Path("runs/x")}
+  assert named_runs([str(sweep_run)]) == {sweep_run.name: sweep_run}
+  assert named_runs([f"pm={sweep_run}"]) == {"pm": sweep_run}
+  assert named_runs(["pm=runs/x"]) == {"pm": Path("runs/x")}
 
 
 def test_ctrl_c_exits_130_with_a_resume_hint_and_no_traceback(tmp_path):

@@ -81,7 +81,7 @@ def _cli_config(level, preset, agent=None, task=None):
   argv = {"low": ["train", "low", "--agent", agent], "full": ["train", "full", "--agent", agent, "--task", task],
           "high": ["train", "high", "--task", task, "--low", "unused"]}[level]
   args = cli.build_parser().parse_args(argv + ["--preset", preset])
-  return cli._sac_config(args, level, agent, task)
+  return cli.sac_config(args, level, agent, task)
 
 
 @pytest.mark.parametrize("name", ["table1", "table2", "table3", "fig5", "fig6"])

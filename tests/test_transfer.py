@@ -9,7 +9,7 @@ import pytest
 
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.evaluate import compose, evaluate, load_policy, trajectory, zero_shot_matrix
+from hdt.transfer.evaluate import compose, evaluate, load_policy, random_actions, trajectory, zero_shot_matrix
 from hdt.transfer.pipeline import high_env, low_policy_fn, train_low
 
 
@@ -99,14 +99,16 @@ def test_save_to_relative_dir_and_killed_save_leaves_previous(tmp_path, monkeypa
 
 
 def test_uniform_actions_ignore_the_policy_and_draw_from_the_env_key():
-  from hdt.envs import make
-  from hdt.transfer.evaluate import _UniformActions
-  env = make("point", "reach")
-  wrapped = _UniformActions(env)
-  s = wrapped.reset(jax.random.PRNGKey(0))
-  a, b = wrapped.step(s, jnp.ones(env.action_size)), wrapped.step(s, -jnp.ones(env.action_size))
-  np.testing.assert_array_equal(a.obs, b.obs)  # the given action is ignored
-  assert not np.allclose(a.obs, env.step(s, jnp.ones(env.action_size)).obs)
+  """hdt.random_actions: the actions come from the env's own key, whatever the policy would do."""
+  policy = load_policy("zoo:point/low")
+  zeroed = dataclasses.replace(policy, params=jax.tree.map(np.zeros_like, policy.params))
+  kw = dict(episodes=2, seeds=[0], key=3)
+  a, b = evaluate(random_actions(policy), **kw), evaluate(random_actions(zeroed), **kw)
+  assert a["params"] == "uniform random actions"
+  for k in a["per_seed"]:  # the policy's actions are ignored: another policy, the same episodes
+    np.testing.assert_array_equal(a["per_seed"][k], b["per_seed"][k])
+  own = evaluate(policy, **kw)["per_seed"]
+  assert not np.allclose(own["goal_dist"], a["per_seed"]["goal_dist"])  # not the given actions
 
 
 def test_sweep_trains_same_shape_points_together_and_writes_each_run(tmp_path):
