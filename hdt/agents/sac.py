@@ -8,8 +8,8 @@ Two optional plug-ins, both no-ops by default:
 
 * ``actor_regularizer(policy_params, obs) -> scalar`` is added to the actor loss (times a scale the
   training loop may anneal; with an observation normaliser it is called as
-  ``actor_regularizer(policy_params, obs, obs_norm)``), e.g. ``beta * KL(pi || pi_ref)`` to a frozen reference policy. It is
-  logged as ``<metric_name>`` and its scale as ``<metric_name>_weight``, where ``metric_name`` is
+  ``actor_regularizer(policy_params, obs, obs_norm)``), e.g. ``beta * KL(pi || pi_ref)`` to a frozen
+  reference policy. It is logged as ``<metric_name>`` and its scale as ``<metric_name>_weight``, where ``metric_name`` is
   the function's attribute of that name ("kl" for :func:`hdt.agents.kl.make_kl_regularizer`;
   default "regularizer").
 * ``reward_fn(aux_state, batch) -> rewards`` recomputes the rewards of a sampled batch before the

@@ -64,7 +64,8 @@ Schedule = Callable[[jax.Array], jax.Array]
 class TrainState:
   """Everything needed to resume training (all arrays; a leading seed axis under vmap)."""
 
-  agent: SACState  # policy/q params, target q params, optimiser states, log_alpha (+opt), update count
+  agent: SACState  # policy/q params, target q params, optimiser states, log_alpha (+opt), update count,
+  # observation statistics (None without normalisation)
   replay: replay_lib.ReplayState
   env_state: Any  # hdt.envs.core.State batched over num_envs
   key: jax.Array

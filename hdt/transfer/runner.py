@@ -28,7 +28,7 @@ from hdt.transfer.card import FORMAT_KEY, PolicyCard
 @dataclasses.dataclass
 class RunResult:
   run_dir: Path | None
-  params: Any  # {"policy", "q"} with a leading seed axis
+  params: Any  # {"policy", "q"} (+ "obs_norm", its observation statistics) with a leading seed axis
   history: dict[str, np.ndarray]  # leading seed axis
   meta: dict  # the run's card as JSON (hdt.transfer.card.PolicyCard.to_json)
   best: dict | None = None  # best periodic evaluation per seed (hdt.agents.train.update_best)
