@@ -28,6 +28,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 import hdt
+from hdt.agents import normalizer
 from hdt.transfer.zoo import resolve as zoo_path  # zoo:NAME wherever a run is read
 
 FORMAT_VERSION = 1
@@ -238,7 +239,7 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
   return split_obs_norm(params), dict(meta, params=use, params_env_steps=steps)
 
 
-NORM = "obs_norm"  # hdt.agents.normalizer.KEY: the statistics beside "policy" and "q"
+NORM = normalizer.KEY  # the observation statistics, beside "policy" and "q"
 
 
 def split_obs_norm(params: dict) -> dict:
