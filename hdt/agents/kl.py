@@ -81,14 +81,18 @@ def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps:
               mode: str = "forward", mean_only: bool = False) -> Plugin:
   """The KL term as a training plug-in: ``beta(env_steps) * KL`` (:func:`linear_anneal` from ``beta``
   to 0 at ``anneal_steps``) to a reference policy kept per seed in ``TrainState.aux["kl_reference"]``;
-  every seed starts with ``reference_params`` (no seed axis)."""
+  every seed starts with ``reference_params`` (no seed axis). ``beta`` is its hyper ``kl_weight``
+  (vmappable over a grid, :mod:`hdt.agents.plugins`): the weight is ``kl_weight`` times the anneal
+  from 1, which equals :func:`linear_anneal` ``(beta, ...)`` bit for bit."""
   term = make_kl_term(policy_apply, mode, mean_only)
   reference = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), reference_params)
+  anneal = linear_anneal(1.0, anneal_steps)
   return Plugin(
       name="kl",
       init=lambda key, agent: (agent, {KL_REFERENCE: reference}),
-      regularizer=lambda state, params, obs: term(params, state[KL_REFERENCE], obs),
-      schedule=linear_anneal(beta, anneal_steps),
+      regularizer=lambda state, params, obs, kl_weight: term(params, state[KL_REFERENCE], obs),
+      schedule=lambda env_steps, kl_weight: kl_weight * anneal(env_steps),
+      hyper={"kl_weight": float(beta)},
   )
 
 
