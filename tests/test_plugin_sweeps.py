@@ -1,0 +1,79 @@
+"""Grids over the plug-ins' weights (issue 17): the KL weight of finetuning and the discriminator
+weight of alignment vary over grid points trained as one vmapped program, like SAC fields."""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from hdt.agents import train as sac_train
+from hdt.agents.discriminator import DiscConfig
+from hdt.agents.kl import kl_plugin
+from hdt.agents.plugins import Plugin
+from hdt.transfer import configs
+from hdt.transfer.align import align_low
+from hdt.transfer.finetune import finetune_high
+from hdt.transfer.pipeline import sweep
+
+
+def _same_runs(grid_res, alone_res):
+  """A grid point's history and parameters equal its separate run's (float rounding apart)."""
+  for k in set(grid_res.history) & set(alone_res.history) - {"walltime"}:
+    np.testing.assert_allclose(grid_res.history[k], alone_res.history[k], rtol=1e-4, atol=1e-5,
+                               equal_nan=True, err_msg=k)
+  for a, b in zip(jax.tree.leaves(grid_res.params), jax.tree.leaves(alone_res.params)):
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_kl_weight_grid_matches_separate_finetune_runs(point_low, point_high, tmp_path):
+  """Two KL weights (0 and 3) x 1 seed as one vmapped program equal two finetune_high runs."""
+  cfg = configs.high_config("waypoint", total_env_steps=100, num_envs=4, steps_per_chunk=25,
+                            num_eval_episodes=2, updates_per_step=2)
+  common = dict(high=point_high.run_dir, low=point_low.run_dir, task="waypoint")
+  betas = [0.0, 3.0]
+  runs = [(cfg, tmp_path / f"kl{b:g}", {"kl_weight": b}) for b in betas]
+  grid = sweep("finetune", runs, seeds=1, quiet=True, **common)
+  for b, res in zip(betas, grid):
+    assert json.loads((res.run_dir / "meta.json").read_text())["kl"] == b
+    _same_runs(res, finetune_high(kl=b, config=cfg, seeds=1, quiet=True, **common))
+  assert np.all(grid[0].history["kl_weight"] == 0) and np.all(grid[1].history["kl_weight"] > 0)
+  assert not np.allclose(grid[0].history["actor_loss"], grid[1].history["actor_loss"], rtol=1e-3)
+
+
+def test_disc_weight_grid_matches_separate_align_runs(point_low, tmp_path):
+  cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=100, batch_size=16,
+                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2, learning_starts=100)
+  disc = DiscConfig(buffer_size=500, start=0)
+  common = dict(imitate=point_low.run_dir, n_offline=256)
+  ws = [0.1, 0.6]
+  runs = [(cfg, tmp_path / f"w{w}", {"disc_weight": w}) for w in ws]
+  grid = sweep("align", runs, seeds=1, quiet=True, agent="point", disc=disc, **common)
+  for w, res in zip(ws, grid):
+    assert json.loads((res.run_dir / "meta.json").read_text())["discriminator"]["w_init"] == w
+    alone = align_low("point", config=cfg, disc=DiscConfig(buffer_size=500, start=0, w_init=w), seeds=1,
+                      quiet=True, **common)
+    _same_runs(res, alone)
+  assert grid[0].history["disc/w"][0, 0] < grid[1].history["disc/w"][0, 0]
+
+
+def test_unknown_grid_names_are_refused_naming_the_vmappable_ones():
+  from toy_env import PointGoal
+  from hdt.agents.sac import SACConfig
+  env, cfg = PointGoal(), SACConfig(hidden_sizes=(8,), batch_size=8, buffer_size=100, num_envs=2,
+                                    steps_per_chunk=5, total_env_steps=10, learning_starts=0)
+  nets = sac_train.make_networks(env, cfg)
+  trainer = sac_train.make_train(env, cfg, plugins=[kl_plugin(nets.policy_apply, nets.policy_init(
+      jax.random.PRNGKey(0)), 1.0, 10)])
+  assert "kl_weight" in trainer.sweepable and "actor_lr" in trainer.sweepable
+  with pytest.raises(ValueError, match=r"\['disc_weight'\] cannot be vmapped.*actor_lr.*kl_weight"):
+    sac_train.run(env, cfg, [0], trainer=trainer, hyper={"disc_weight": [0.1, 0.2]})
+  with pytest.raises(ValueError, match="cannot be vmapped.*vmappable: actor_lr"):  # no plug-in: no kl_weight
+    sac_train.run(env, cfg, [0], hyper={"kl_weight": [0.1, 0.2]})
+  with pytest.raises(ValueError, match="'kl_weight', which plug-in 'kl' already uses"):
+    sac_train.make_train(env, cfg, plugins=[kl_plugin(nets.policy_apply, {}, 1.0, 10),
+                                            Plugin("other", hyper={"kl_weight": 1.0})])
+  with pytest.raises(ValueError, match="'tau', which SAC already uses"):
+    sac_train.make_train(env, cfg, plugins=[Plugin("other", hyper={"tau": 1.0})])
+  with pytest.raises(ValueError, match=r"sweep finetune: \['disc_weight'\] cannot be varied"):
+    sweep("finetune", [(cfg, None, {"disc_weight": 0.3})], high="h", low="l", task="waypoint")
