@@ -77,3 +77,20 @@ def test_unknown_grid_names_are_refused_naming_the_vmappable_ones():
     sac_train.make_train(env, cfg, plugins=[Plugin("other", hyper={"tau": 1.0})])
   with pytest.raises(ValueError, match=r"sweep finetune: \['disc_weight'\] cannot be varied"):
     sweep("finetune", [(cfg, None, {"disc_weight": 0.3})], high="h", low="l", task="waypoint")
+
+
+def test_cli_sweep_finetune_writes_one_run_per_kl_weight(point_low, point_high, tmp_path, monkeypatch, capsys):
+  from hdt.cli import main
+  monkeypatch.setitem(configs.PRESETS["smoke"], "high", dict(  # a smaller smoke budget, for time
+      total_env_steps=50, num_envs=2, updates_per_step=1, steps_per_chunk=25, num_eval_episodes=2))
+  out = tmp_path / "sw"
+  assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
+               "--task", "waypoint", "--grid", "kl_weight=0,1", "--preset", "smoke", "--quiet",
+               "--out", str(out)]) == 0
+  for kl in (0, 1):
+    meta = json.loads((out / f"kl_weight={kl}" / "meta.json").read_text())
+    assert meta["kl"] == kl and meta["finetuned_from"]["path"] == str(point_high.run_dir)
+  assert "kl_weight=0" in (out / "sweep.md").read_text()
+  assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
+               "--task", "waypoint", "--grid", "disc_weight=0.1", "--out", str(tmp_path / "no")]) == 2
+  assert "not a SAC field nor a weight of sweep finetune (kl_weight)" in capsys.readouterr().err
