@@ -18,17 +18,18 @@ from hdt.transfer.pipeline import sweep
 
 
 def _same_runs(grid_res, alone_res):
-  """A grid point's history and parameters equal its separate run's (float rounding apart)."""
+  """A grid point's history and parameters equal its separate run's (float rounding apart; rollouts
+  through the LL and the physics amplify it in the evaluations)."""
   for k in set(grid_res.history) & set(alone_res.history) - {"walltime"}:
-    np.testing.assert_allclose(grid_res.history[k], alone_res.history[k], rtol=1e-4, atol=1e-5,
-                               equal_nan=True, err_msg=k)
+    tol = dict(rtol=1e-3, atol=1e-3) if k.startswith("eval/") else dict(rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(grid_res.history[k], alone_res.history[k], equal_nan=True, err_msg=k, **tol)
   for a, b in zip(jax.tree.leaves(grid_res.params), jax.tree.leaves(alone_res.params)):
     np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
 
 
 def test_kl_weight_grid_matches_separate_finetune_runs(point_low, point_high, tmp_path):
   """Two KL weights (0 and 3) x 1 seed as one vmapped program equal two finetune_high runs."""
-  cfg = configs.high_config("waypoint", total_env_steps=100, num_envs=4, steps_per_chunk=25,
+  cfg = configs.high_config("waypoint", total_env_steps=50, num_envs=2, steps_per_chunk=25,
                             num_eval_episodes=2, updates_per_step=2)
   common = dict(high=point_high.run_dir, low=point_low.run_dir, task="waypoint")
   betas = [0.0, 3.0]
@@ -42,8 +43,9 @@ def test_kl_weight_grid_matches_separate_finetune_runs(point_low, point_high, tm
 
 
 def test_disc_weight_grid_matches_separate_align_runs(point_low, tmp_path):
-  cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=100, batch_size=16,
-                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2, learning_starts=100)
+  cfg = configs.low_config("point", total_env_steps=200, num_envs=2, steps_per_chunk=100, batch_size=16,
+                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2, learning_starts=50,
+                           updates_per_step=1)
   disc = DiscConfig(buffer_size=500, start=0)
   common = dict(imitate=point_low.run_dir, n_offline=256)
   ws = [0.1, 0.6]
