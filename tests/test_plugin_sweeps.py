@@ -96,3 +96,26 @@ def test_cli_sweep_finetune_writes_one_run_per_kl_weight(point_low, point_high, 
   assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
                "--task", "waypoint", "--grid", "disc_weight=0.1", "--out", str(tmp_path / "no")]) == 2
   assert "not a SAC field nor a weight of sweep finetune (kl_weight)" in capsys.readouterr().err
+
+
+def test_weights_as_hyper_give_the_numbers_of_before():
+  """Without a grid, the KL schedule (kl_weight x the anneal from 1) and the discriminator weight
+  (disc_weight as w0) are bit for bit those of linear_anneal(beta) and DiscConfig.w_init; so is a
+  float32 grid value. (tests/test_plugins.py trains both plug-ins exactly as the old callables.)"""
+  import jax.numpy as jnp
+  from hdt.agents import discriminator as D
+  from hdt.agents.kl import linear_anneal
+  steps = jnp.arange(0, 2500, 7, dtype=jnp.int32)
+  for beta in (0.0, 0.01, 1 / 3, 1.0, 10.0):
+    for anneal in (0, 777, 1000.4):
+      p = kl_plugin(lambda params, obs: (obs, obs), {}, beta, anneal)
+      old = jax.jit(jax.vmap(linear_anneal(beta, anneal)))(steps)
+      new = jax.jit(jax.vmap(lambda s: p.schedule(s, **p.hyper)))(steps)  # the default, a constant
+      grid = jax.jit(jax.vmap(lambda s, w: p.schedule(s, kl_weight=w), (0, None)))(steps, jnp.float32(beta))
+      np.testing.assert_array_equal(new, old)
+      np.testing.assert_array_equal(grid, old)
+  for decay in (True, False):
+    cfg = DiscConfig(w_init=0.3, w_decay=decay)
+    old = jax.jit(lambda: D.reward_weight(cfg, steps, 2000))()  # training runs jitted
+    np.testing.assert_array_equal(jax.jit(lambda: D.reward_weight(cfg, steps, 2000, 0.3))(), old)
+    np.testing.assert_array_equal(jax.jit(lambda w: D.reward_weight(cfg, steps, 2000, w))(jnp.float32(0.3)), old)
