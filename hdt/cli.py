@@ -231,7 +231,13 @@ def build_parser() -> argparse.ArgumentParser:
   sw.add_argument("--anneal-frac", type=float, default=0.5, help="finetune: beta reaches 0 after this fraction")
   sw.add_argument("--mode", choices=("forward", "reverse"), default="forward", help="finetune: KL direction")
   sw.add_argument("--mean-only", action="store_true", help="finetune: tie only the means")
+  sw.add_argument("--reference-params", choices=("best", "final"), default="best",
+                  help="finetune: A's parameters the KL ties to (as `hdt finetune`)")
+  sw.add_argument("--low-seed", type=int, default=0, help="high, finetune: seed of --low that drives every HL seed")
+  _low_params(sw)
   sw.add_argument("--n-offline", type=int, default=20_000, help="align: A transitions collected offline")
+  sw.add_argument("--imitate-params", choices=("best", "final"), default="best",
+                  help="align: A's parameters to imitate (as `hdt align`)")
   _add_dataclass_options(sw, DiscConfig, "disc-", "discriminator (align)", "Algorithm 1's discriminator (SPEC 4).")
   sw.add_argument("--set", action="append", metavar="KEY=VALUE", default=[])
   sw.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
@@ -529,12 +535,14 @@ def cmd_sweep(args) -> int:
   root = _out_dir(args, f"sweep-{args.level}", kind="sweep")
   seeds = _seeds(args)
   if args.level in ("high", "finetune"):
-    pipeline.load_low(args.low)  # checked to be a usable LL before anything is written
+    pipeline.load_low(args.low, args.low_seed)  # checked to be a usable LL before anything is written
   if args.level == "finetune":
     from hdt.transfer.finetune import load_high
     load_high(args.high)  # checked to be an HL
   if args.level == "align":
     pipeline.load_low(args.imitate)
+  disc = {"disc": DiscConfig(**_overrides(args, DiscConfig, "disc_"))} if args.level == "align" else {}
+  pipeline.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], disc)
   with rundir.claim(root, "sweep", overwrite=args.overwrite):
     rows = _sweep(args, grid, root, seeds, overrides)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
@@ -562,11 +570,13 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
     sac = {k: v for k, v in point.items() if k not in weights}
     runs.append((_sac_config(args, level, args.agent, args.task if level != "low" else None, **extra, **sac),
                  root / names[-1].replace("/", "_"), weights))
-  stage = {"low": lambda: dict(agent=args.agent), "high": lambda: dict(task=args.task, low=args.low),
+  low = dict(low=args.low, low_seed=args.low_seed, low_params=args.low_params)
+  stage = {"low": lambda: dict(agent=args.agent), "high": lambda: dict(task=args.task, **low),
            "full": lambda: dict(agent=args.agent, task=args.task),
-           "finetune": lambda: dict(high=args.high, low=args.low, task=args.task, anneal_frac=args.anneal_frac,
-                                    mode=args.mode, mean_only=args.mean_only),
+           "finetune": lambda: dict(high=args.high, task=args.task, anneal_frac=args.anneal_frac, mode=args.mode,
+                                    mean_only=args.mean_only, reference_params=args.reference_params, **low),
            "align": lambda: dict(agent=args.agent, imitate=args.imitate, n_offline=args.n_offline,
+                                 imitate_params=args.imitate_params,
                                  disc=DiscConfig(**_overrides(args, DiscConfig, "disc_")))}[args.level]()
   # points differing only in learning rates, tau, gamma, reward scale or the plug-in weights train as one
   # vmapped program

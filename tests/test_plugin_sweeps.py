@@ -96,6 +96,15 @@ def test_cli_sweep_finetune_writes_one_run_per_kl_weight(point_low, point_high, 
   assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
                "--task", "waypoint", "--grid", "disc_weight=0.1", "--out", str(tmp_path / "no")]) == 2
   assert "not a SAC field nor a weight of sweep finetune (kl_weight)" in capsys.readouterr().err
+  assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
+               "--task", "waypoint", "--grid", "kl_weight=1,-1", "--out", str(tmp_path / "no")]) == 1
+  assert "the KL weight must be a finite number >= 0" in capsys.readouterr().err
+  assert main(["sweep", "align", "--agent", "point", "--imitate", str(point_low.run_dir),
+               "--grid", "disc_weight=0.3,1.5", "--out", str(tmp_path / "no")]) == 1
+  assert "w_init=1.5 must be in [0, 1]" in capsys.readouterr().err
+  assert main(["sweep", "align", "--agent", "point", "--grid", "disc_weight=0.3"]) == 2
+  assert "sweep align needs --imitate" in capsys.readouterr().err
+  assert not (tmp_path / "no").exists()
 
 
 def test_weights_as_hyper_give_the_numbers_of_before():

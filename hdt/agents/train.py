@@ -202,7 +202,7 @@ def make_train(
   plugins: :class:`hdt.agents.plugins.Plugin` objects (init, update, reward, regularizer, schedule,
     transition_extras; each optional), folded over in order. Their per-seed states are merged into
     ``TrainState.aux``. Plug-in ``i`` gets the key :func:`plugin_key` ``(seed key, i)`` at init and a
-    per-step key derived the same way.
+    per-step key derived the same way. Their declared ``hyper`` names join ``Trainer.sweepable``.
   The keyword callables are one more plug-in, placed first (kept for callers that predate plugins):
     actor_regularizer(policy_params, obs) -> scalar, added to the actor loss, multiplied by
       actor_regularizer_schedule(env_steps) (default 1).
@@ -594,8 +594,8 @@ def run(
     before ``progress_fn``; e.g. to save resumable state. ``ts`` is donated to the next chunk:
     copy what you keep.
   hyper: ``{name: [v1, ..., vP]}`` over fields of :data:`hdt.agents.sac.SWEEPABLE` and the
-    plug-ins' hyper (``trainer.sweepable``, see :func:`grid_points`): P grid points x the seeds train as ONE vmapped program; every returned
-    leading axis (and ``initial_state``'s) is then points x seeds, point-major (runs
+    plug-ins' hyper (``trainer.sweepable``, see :func:`grid_points`): P grid points x the seeds train
+    as ONE vmapped program; every returned leading axis (and ``initial_state``'s) is then points x seeds, point-major (runs
     ``p * len(seeds) + i``), and ``config``'s values of those fields are not used. Each run gets the
     same keys as the seed alone would, so a point matches its separate run up to float rounding.
     Plug-in values replace that plug-in's defaults.

@@ -190,7 +190,7 @@ def sweep(level: str, runs: list[tuple], seeds=1, *, backend="auto", quiet=False
   names = sorted(runs[0][2]) if runs else []
   if any(sorted(w) != names for _, _, w in runs):
     raise ValueError(f"sweep: every run needs values of the same weights, got {[sorted(w) for _, _, w in runs]}")
-  _check_weights(level, [w for _, _, w in runs], stage)
+  check_weights(level, [w for _, _, w in runs], stage)
   groups: dict[tuple, list[int]] = {}
   for i, (cfg, _, _) in enumerate(runs):
     shape = tuple((k, v) for k, v in dataclasses.asdict(cfg).items() if k not in SWEEPABLE)
@@ -215,7 +215,7 @@ def sweep(level: str, runs: list[tuple], seeds=1, *, backend="auto", quiet=False
 WEIGHTS = {"finetune": ("kl_weight",), "align": ("disc_weight",)}  # the plug-in weights sweep can vary
 
 
-def _check_weights(level: str, weights: list[dict], stage: dict) -> None:
+def check_weights(level: str, weights: list[dict], stage: dict) -> None:
   """Refuses (one line) weights the level has no plug-in for, and values its stage would refuse."""
   from hdt.agents.discriminator import DiscConfig
   for w in weights:
