@@ -8,6 +8,7 @@
   hdt finetune --high RUN --low RUN --task push1 --kl 1.0
   hdt eval --high RUN --low RUN --task waypoint   (repeat --high/--low NAME=RUN for a matrix)
   hdt sweep low --agent point --grid actor_lr=1e-4,3e-4
+  hdt sweep finetune --high RUN --low RUN --task waypoint --grid kl_weight=0,1,10
   hdt reproduce table1 --preset cpu               paper tables/figures (experiments/)
   hdt report RUN                                  Markdown + PNGs of a run directory
   hdt quickstart                                  minutes-scale tour on a CPU
@@ -218,12 +219,26 @@ def build_parser() -> argparse.ArgumentParser:
 
   sw = sub.add_parser("sweep", help="seeds x a hyper-parameter grid (seeds and same-shape grid points vmapped)",
                       formatter_class=fmt)
-  sw.add_argument("level", choices=("low", "high", "full"))
+  sw.add_argument("level", choices=("low", "high", "full", "finetune", "align"))
   sw.add_argument("--agent", default=None)
   sw.add_argument("--task", default=None)
-  sw.add_argument("--low", type=Path, default=None, help="LL run (level high)")
+  sw.add_argument("--low", type=Path, default=None, help="LL run (levels high, finetune)")
+  sw.add_argument("--high", type=Path, default=None, help="HL run of agent A (level finetune)")
+  sw.add_argument("--imitate", type=Path, default=None, help="LL run of agent A (level align)")
   sw.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2,...",
-                  help="SAC field and its values (repeatable; the grid is their product)")
+                  help="SAC field (or kl_weight for finetune, disc_weight for align) and its values "
+                       "(repeatable; the grid is their product)")
+  sw.add_argument("--anneal-frac", type=float, default=0.5, help="finetune: beta reaches 0 after this fraction")
+  sw.add_argument("--mode", choices=("forward", "reverse"), default="forward", help="finetune: KL direction")
+  sw.add_argument("--mean-only", action="store_true", help="finetune: tie only the means")
+  sw.add_argument("--reference-params", choices=("best", "final"), default="best",
+                  help="finetune: A's parameters the KL ties to (as `hdt finetune`)")
+  sw.add_argument("--low-seed", type=int, default=0, help="high, finetune: seed of --low that drives every HL seed")
+  _low_params(sw)
+  sw.add_argument("--n-offline", type=int, default=20_000, help="align: A transitions collected offline")
+  sw.add_argument("--imitate-params", choices=("best", "final"), default="best",
+                  help="align: A's parameters to imitate (as `hdt align`)")
+  _add_dataclass_options(sw, DiscConfig, "disc-", "discriminator (align)", "Algorithm 1's discriminator (SPEC 4).")
   sw.add_argument("--set", action="append", metavar="KEY=VALUE", default=[])
   sw.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
   _common(sw, "sweep directory, one run per grid point (default: runs/sweep-<level>)")
@@ -469,11 +484,12 @@ def _write_json(path: Path, obj) -> None:
 
 
 def _grid_value(name: str, text: str, field: dataclasses.Field):
-  """One --grid value, of the SAC field's type (finite numbers; tuples are not swept)."""
+  """One --grid value, of the SAC field's type (finite numbers; tuples are not swept); a float for a
+  plug-in weight (``field`` None)."""
   import math
-  want = _field_type(field).get("type")
+  want = float if field is None else _field_type(field).get("type")
   value = _parse_value(text.strip())
-  if _field_type(field).get("nargs"):
+  if field is not None and _field_type(field).get("nargs"):
     raise CLIError(f"--grid {name}: tuple fields cannot be swept; pass --{name.replace('_', '-')} per run")
   if want is int:
     ok = isinstance(value, int) and not isinstance(value, bool)
@@ -483,8 +499,9 @@ def _grid_value(name: str, text: str, field: dataclasses.Field):
     ok = bool(text.strip())
   if not ok:
     kind = {int: "an integer", float: "a finite number"}.get(want, "a value")
+    example = 1.0 if field is None else field.default
     raise CLIError(f"--grid {name}={text!r}: expected {kind} for each comma-separated value, e.g. "
-                   f"{name}={field.default!r},{field.default!r}")
+                   f"{name}={example!r},{example!r}")
   return value
 
 
@@ -492,31 +509,44 @@ def cmd_sweep(args) -> int:
   from hdt.report import markdown_table
   from hdt.transfer import pipeline, rundir
   fields = {f.name: f for f in dataclasses.fields(SACConfig)}
+  weights = pipeline.WEIGHTS.get(args.level, ())  # the level's plug-in weights (kl_weight, disc_weight)
   grid = {}
   for g in args.grid:
     if "=" not in g:
       raise CLIError(f"--grid {g!r}: expected FIELD=V1,V2,...")
     name, values = g.split("=", 1)
-    if name not in fields:
-      raise CLIError(f"--grid {name}: not a SAC field; fields: {', '.join(fields)}")
+    if name not in fields and name not in weights:
+      also = f" nor a weight of sweep {args.level} ({', '.join(weights)})" if weights else ""
+      raise CLIError(f"--grid {name}: not a SAC field{also}; fields: {', '.join(fields)}")
     if name in grid:
       raise CLIError(f"--grid {name} is given twice: list all its values once, {name}=V1,V2,...")
-    grid[name] = [_grid_value(name, v, fields[name]) for v in values.split(",")]
+    grid[name] = [_grid_value(name, v, fields.get(name)) for v in values.split(",")]
   if not grid:
     raise CLIError("give at least one --grid FIELD=V1,V2")
-  if args.level in ("low", "full") and not args.agent:
+  if args.level in ("low", "full", "align") and not args.agent:
     raise CLIError(f"sweep {args.level} needs --agent")
-  if args.level in ("high", "full") and not args.task:
+  if args.level in ("high", "full", "finetune") and not args.task:
     raise CLIError(f"sweep {args.level} needs --task")
-  if args.level == "high" and not args.low:
-    raise CLIError("sweep high needs --low RUN")
+  if args.level in ("high", "finetune") and not args.low:
+    raise CLIError(f"sweep {args.level} needs --low RUN")
+  if args.level == "finetune" and not args.high:
+    raise CLIError("sweep finetune needs --high RUN (A's HL)")
+  if args.level == "align" and not args.imitate:
+    raise CLIError("sweep align needs --imitate RUN (A's LL)")
   _check_agent_task(args.agent, args.task)
   overrides = _key_values(args.set, "--set")
   pipeline.check_env_overrides(overrides, args.agent, args.task or "reach")
   root = _out_dir(args, f"sweep-{args.level}", kind="sweep")
   seeds = _seeds(args)
-  if args.level == "high":
-    pipeline.load_low(args.low)  # checked to be a usable LL before anything is written
+  if args.level in ("high", "finetune"):
+    pipeline.load_low(args.low, args.low_seed)  # checked to be a usable LL before anything is written
+  if args.level == "finetune":
+    from hdt.transfer.finetune import load_high
+    load_high(args.high)  # checked to be an HL
+  if args.level == "align":
+    pipeline.load_low(args.imitate)
+  disc = {"disc": DiscConfig(**_overrides(args, DiscConfig, "disc_"))} if args.level == "align" else {}
+  pipeline.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], disc)
   with rundir.claim(root, "sweep", overwrite=args.overwrite):
     rows = _sweep(args, grid, root, seeds, overrides)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
@@ -530,19 +560,34 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
   from hdt.envs.tasks import get_task
   from hdt.report import fmt
   from hdt.transfer import pipeline
+  from hdt.transfer import checkpoint as ckpt
+  level = {"finetune": "high", "align": "low"}.get(args.level, args.level)  # of the SAC config
+  extra = {}
+  if args.level == "finetune":  # as `hdt finetune`: A's hidden sizes, the preset's task options
+    extra = dict(hidden_sizes=tuple(ckpt.load_meta(args.high)["hidden_sizes"]))
+    overrides = configs.task_options(args.preset, args.task) | overrides
   names, runs = [], []
   for values in itertools.product(*grid.values()):
     point = dict(zip(grid, values))
     names.append(",".join(f"{k_}={v}" for k_, v in point.items()))
-    runs.append((sac_config(args, args.level, args.agent, args.task, **point),
-                 root / names[-1].replace("/", "_")))
-  stage = {"low": dict(agent=args.agent), "high": dict(task=args.task, low=args.low),
-           "full": dict(agent=args.agent, task=args.task)}[args.level]
-  # points differing only in learning rates, tau, gamma or reward scale train as one vmapped program
+    weights = {k: float(v) for k, v in point.items() if k in pipeline.WEIGHTS.get(args.level, ())}
+    sac = {k: v for k, v in point.items() if k not in weights}
+    runs.append((sac_config(args, level, args.agent, args.task if level != "low" else None, **extra, **sac),
+                 root / names[-1].replace("/", "_"), weights))
+  low = dict(low=args.low, low_seed=args.low_seed, low_params=args.low_params)
+  stage = {"low": lambda: dict(agent=args.agent), "high": lambda: dict(task=args.task, **low),
+           "full": lambda: dict(agent=args.agent, task=args.task),
+           "finetune": lambda: dict(high=args.high, task=args.task, anneal_frac=args.anneal_frac, mode=args.mode,
+                                    mean_only=args.mean_only, reference_params=args.reference_params, **low),
+           "align": lambda: dict(agent=args.agent, imitate=args.imitate, n_offline=args.n_offline,
+                                 imitate_params=args.imitate_params,
+                                 disc=DiscConfig(**_overrides(args, DiscConfig, "disc_")))}[args.level]()
+  # points differing only in learning rates, tau, gamma, reward scale or the plug-in weights train as one
+  # vmapped program
   results = pipeline.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)
-  metric = get_task(args.task if args.level != "low" else "reach").headline_column
+  metric = get_task(args.task if level != "low" else "reach").headline_column
   rows = []
-  for name, (_, out), res in zip(names, runs, results):
+  for name, (_, out, _), res in zip(names, runs, results):
     final = res.history[metric][:, -1]
     rows.append([name, metric[5:], fmt(np.mean(final), np.std(final)), str(out)])
   return rows

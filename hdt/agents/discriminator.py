@@ -128,10 +128,12 @@ def disc_loss(apply_fn, params, x, labels):
   return loss, acc
 
 
-def reward_weight(cfg: DiscConfig, step, total_env_steps: int) -> jax.Array:
-  """``max(w0 (1 - step/T), w_min)`` with ``w_decay`` (the authors' ``discrim_decay``), else ``w0``."""
+def reward_weight(cfg: DiscConfig, step, total_env_steps: int, w_init=None) -> jax.Array:
+  """``max(w0 (1 - step/T), w_min)`` with ``w_decay`` (the authors' ``discrim_decay``), else ``w0``;
+  ``w0``: ``w_init`` if given (e.g. a grid point's, traced), else ``cfg.w_init``."""
+  w0 = cfg.w_init if w_init is None else w_init
   frac = 1.0 - jnp.asarray(step, jnp.float32) / float(total_env_steps)
-  w = jnp.maximum(cfg.w_init * frac, cfg.w_min) if cfg.w_decay else jnp.float32(cfg.w_init) + 0 * frac
+  w = jnp.maximum(w0 * frac, cfg.w_min) if cfg.w_decay else jnp.asarray(w0, jnp.float32) + 0 * frac
   return w.astype(jnp.float32)
 
 
@@ -141,10 +143,11 @@ def disc_bonus(d, coef: float = 2.0, clip: float = 10.0):
   return jnp.clip(-coef * jnp.log(d + 1e-6), 0.0, clip)
 
 
-def shaped_reward(cfg: DiscConfig, r_task, d, step, total_env_steps: int):
+def shaped_reward(cfg: DiscConfig, r_task, d, step, total_env_steps: int, w_init=None):
   """``(1 - w) r_task + [step > start] w bonus(D)`` (``DSAC._train_step``); ``step`` is the index of
-  the latest env step (0-based). The task reward is scaled by ``1 - w`` even before ``start``."""
-  w = reward_weight(cfg, step, total_env_steps)
+  the latest env step (0-based). The task reward is scaled by ``1 - w`` even before ``start``.
+  ``w_init``: see :func:`reward_weight`."""
+  w = reward_weight(cfg, step, total_env_steps, w_init)
   on = jnp.asarray(step) > cfg.start
   return (1.0 - w) * r_task + jnp.where(on, w * disc_bonus(d, cfg.coef, cfg.reward_clip), 0.0)
 
@@ -197,9 +200,12 @@ class Alignment(NamedTuple):
 
   @property
   def plugin(self) -> Plugin:
-    """The alignment as one :class:`hdt.agents.plugins.Plugin` (combinable with others)."""
+    """The alignment as one :class:`hdt.agents.plugins.Plugin` (combinable with others); its hyper
+    ``disc_weight`` is the reward weight w0 (``cfg.w_init``), vmappable over a grid."""
     return Plugin(name="discriminator", init=lambda key, agent: (agent, self.aux_init(key)),
-                  update=self.aux_update, reward=self.reward_fn, transition_extras=self.transition_extras)
+                  update=lambda aux, tr, steps, key, disc_weight: self.aux_update(aux, tr, steps, key, disc_weight),
+                  reward=lambda aux, batch, disc_weight: self.reward_fn(aux, batch, disc_weight),
+                  transition_extras=self.transition_extras, hyper={"disc_weight": float(self.cfg.w_init)})
 
   @property
   def plugins(self) -> dict:
@@ -271,7 +277,7 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     upd = jax.tree_util.tree_map(lambda u: -lr * u, upd)
     return optax.apply_updates(params, upd), opt_state, loss, acc
 
-  def aux_update(aux, transitions, env_steps, key):
+  def aux_update(aux, transitions, env_steps, key, w_init=None):
     k_bits, k_a = jax.random.split(key)
     x_b = inputs(transitions).reshape(-1, n_in)
     n = x_b.shape[0]
@@ -311,12 +317,12 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     n_on = jnp.maximum(jnp.sum(on), 1.0)
     step = env_steps - 1
     metrics = {"disc/loss": jnp.sum(loss * on) / n_on, "disc/acc": jnp.sum(acc * on) / n_on,
-               "disc/w": reward_weight(cfg, step, T), "disc/lr": disc_lr(cfg, step, T)}
+               "disc/w": reward_weight(cfg, step, T, w_init), "disc/lr": disc_lr(cfg, step, T)}
     out.update(params=params, opt_state=opt_state, buf=buf, ptr=ptr, size=size, env_steps=env_steps)
     return out, metrics
 
-  def reward_fn(aux, batch):
+  def reward_fn(aux, batch, w_init=None):
     d = jax.nn.sigmoid(apply(aux["params"], inputs(batch)))
-    return shaped_reward(cfg, batch.reward, d, aux["env_steps"] - 1, T)
+    return shaped_reward(cfg, batch.reward, d, aux["env_steps"] - 1, T, w_init)
 
   return Alignment(aux_init, aux_update, reward_fn, extras, apply, cfg)

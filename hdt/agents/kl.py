@@ -89,18 +89,22 @@ def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps:
   """The KL term as a training plug-in: ``beta(env_steps) * KL`` (:func:`linear_anneal` from ``beta``
   to 0 at ``anneal_steps``) to a reference policy kept per seed in ``TrainState.aux["kl_reference"]``
   (and its observation statistics, if any, in ``aux["kl_reference_obs_norm"]``); every seed starts
-  with ``reference_params`` (no seed axis)."""
+  with ``reference_params`` (no seed axis). ``beta`` is its hyper ``kl_weight`` (vmappable over a grid,
+  :mod:`hdt.agents.plugins`): the weight is ``kl_weight`` times the anneal from 1, which equals
+  :func:`linear_anneal` ``(beta, ...)`` bit for bit."""
   term = make_kl_term(policy_apply, mode, mean_only)
   f32 = lambda tree: jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), tree)
   state = {KL_REFERENCE: f32(reference_params)}
   if reference_obs_norm is not None:
     state[KL_REFERENCE_OBS_NORM] = f32(reference_obs_norm)
+  anneal = linear_anneal(1.0, anneal_steps)
   return Plugin(
       name="kl",
       init=lambda key, agent: (agent, dict(state)),
-      regularizer=lambda state, params, obs, obs_norm=None: term(
+      regularizer=lambda state, params, obs, obs_norm=None, kl_weight=None: term(
           params, state[KL_REFERENCE], obs, obs_norm, state.get(KL_REFERENCE_OBS_NORM)),
-      schedule=linear_anneal(beta, anneal_steps),
+      schedule=lambda env_steps, kl_weight: kl_weight * anneal(env_steps),
+      hyper={"kl_weight": float(beta)},
   )
 
 

@@ -10,7 +10,7 @@ its own plug-in's keys.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import jax
 
@@ -30,6 +30,8 @@ class Plugin:
     (``regularizer(state, policy_params, obs, obs_norm)`` with an observation normaliser).
   schedule(env_steps) -> weight of the regulariser (default 1).
   transition_extras(env_state, next_env_state) -> pytree stored with each transition.
+  hyper: {name: default} of the plug-in's vmappable scalars (names unique across plug-ins and
+    SWEEPABLE), passed as ``**values`` to update, reward, regularizer and schedule (module docstring).
   """
 
   name: str
@@ -39,6 +41,13 @@ class Plugin:
   regularizer: Callable[[State, Any, jax.Array], jax.Array] | None = None
   schedule: Callable[[jax.Array], jax.Array] | None = None
   transition_extras: Callable[[Any, Any], Any] | None = None
+  hyper: Mapping[str, float] = dataclasses.field(default_factory=dict, hash=False)
+
+
+def values(plugin: Plugin, hyper: Mapping | None) -> dict:
+  """The keyword arguments of ``plugin``'s per-step hooks: its hyper defaults, overridden by
+  ``hyper``'s values (e.g. a grid point's, possibly traced) where given."""
+  return {k: (hyper[k] if hyper and k in hyper else v) for k, v in plugin.hyper.items()}
 
 
 def from_callables(actor_regularizer=None, actor_regularizer_schedule=None, reward_fn=None, aux_init=None,
@@ -74,6 +83,19 @@ def check(plugins: Sequence[Plugin]) -> tuple[Plugin, ...]:
     if len(users) > 1:
       raise ValueError(f"plugins {users} each define {hook}; at most one plug-in may (combine them into one)")
   return plugins
+
+
+def sweepable(plugins: Sequence[Plugin], taken: Sequence[str] = ()) -> tuple[str, ...]:
+  """The hyper names of ``plugins``, refused in one line where one repeats another's or ``taken``'s
+  (e.g. SWEEPABLE)."""
+  seen = {k: "SAC" for k in taken}
+  for p in plugins:
+    for k in p.hyper:
+      if k in seen:
+        raise ValueError(f"plug-in {p.name!r} declares hyper-parameter {k!r}, which {seen[k]} already uses; "
+                         f"give it another name")
+      seen[k] = f"plug-in {p.name!r}"
+  return tuple(k for p in plugins for k in p.hyper)
 
 
 def own(aux: dict, keys: Sequence[str]) -> State:

@@ -44,9 +44,9 @@ from hdt.agents.replay import Transition
 from hdt.agents.sac import (
     ActorRegularizer,
     RewardFn,
+    SWEEPABLE,
     SACConfig,
     SACState,
-    hyperparams,
     init_sac_state,
     make_update,
 )
@@ -81,6 +81,7 @@ class Trainer(NamedTuple):
   train: Callable[[jax.Array], tuple[TrainState, dict]]
   networks: nets.SACNetworks
   config: SACConfig
+  sweepable: tuple[str, ...] = SWEEPABLE  # what run(hyper=...) may vary: SWEEPABLE + the plug-ins' hyper
 
 
 def plugin_key(key: jax.Array, index: int) -> jax.Array:
@@ -199,7 +200,7 @@ def make_train(
   plugins: :class:`hdt.agents.plugins.Plugin` objects (init, update, reward, regularizer, schedule,
     transition_extras; each optional), folded over in order. Their per-seed states are merged into
     ``TrainState.aux``. Plug-in ``i`` gets the key :func:`plugin_key` ``(seed key, i)`` at init and a
-    per-step key derived the same way.
+    per-step key derived the same way. Their declared ``hyper`` names join ``Trainer.sweepable``.
   The keyword callables are one more plug-in, placed first (kept for callers that predate plugins):
     actor_regularizer(policy_params, obs) -> scalar, added to the actor loss, multiplied by
       actor_regularizer_schedule(env_steps) (default 1).
@@ -213,6 +214,7 @@ def make_train(
   legacy = plugin_lib.from_callables(actor_regularizer, actor_regularizer_schedule, reward_fn, aux_init,
                                      aux_update, transition_extras)
   plugins = plugin_lib.check(([legacy] if legacy else []) + list(plugins))
+  sweepable = SWEEPABLE + plugin_lib.sweepable(plugins, SWEEPABLE)
   n_envs, batch_size = config.num_envs, config.batch_size
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
   deterministic_policy = lambda obs_norm: lambda params, obs: nets.deterministic_action(
@@ -240,25 +242,31 @@ def make_train(
     owned.append(keys)
   regularizing = [(p, keys) for p, keys in zip(plugins, owned) if p.regularizer is not None]
   reg_plugin = regularizing[0] if regularizing else None
-  reg_schedule = next((p.schedule for p in plugins if p.schedule is not None), None)
-  schedule = reg_schedule or (lambda env_steps: jnp.ones((), jnp.float32))
+  sched_plugin = next((p for p in plugins if p.schedule is not None), None)
   rewarding = [(p, keys) for p, keys in zip(plugins, owned) if p.reward is not None]
+  value = plugin_lib.values  # a plug-in's hyper values: hyper's (grid point) or its defaults
 
-  def plugin_reward(aux, batch):
+  def schedule(env_steps, hyper):
+    if sched_plugin is None:
+      return jnp.ones((), jnp.float32)
+    return sched_plugin.schedule(env_steps, **value(sched_plugin, hyper))
+
+  def plugin_reward(aux, batch, hyper):
     for p, keys in rewarding:
-      batch = batch.replace(reward=p.reward(plugin_lib.own(aux, keys), batch).astype(batch.reward.dtype))
+      r = p.reward(plugin_lib.own(aux, keys), batch, **value(p, hyper))
+      batch = batch.replace(reward=r.astype(batch.reward.dtype))
     return batch.reward
 
-  def make_update_with(aux):
+  def make_update_with(aux, hyper):
     """One gradient update whose actor regulariser sees the plug-in's state (per seed)."""
     reg = None
     if reg_plugin is not None:
       p, keys = reg_plugin
       def reg(params, obs, *obs_norm):  # obs_norm: only with a normaliser (hdt.agents.sac)
-        return p.regularizer(plugin_lib.own(aux, keys), params, obs, *obs_norm)
+        return p.regularizer(plugin_lib.own(aux, keys), params, obs, *obs_norm, **value(p, hyper))
       reg.metric_name = p.name if p.name == "kl" else "regularizer"  # logged as kl / kl_weight
     return make_update(networks, config, act_size, actor_regularizer=reg,
-                       reward_fn=plugin_reward if rewarding else None)
+                       reward_fn=(lambda aux, batch: plugin_reward(aux, batch, hyper)) if rewarding else None)
 
   def plugins_init(key, agent):
     aux = {}
@@ -268,11 +276,12 @@ def make_train(
         aux.update(state)
     return agent, aux
 
-  def plugins_update(aux, transitions, env_steps, key):
+  def plugins_update(aux, transitions, env_steps, key, hyper):
     aux, metrics = dict(aux), {}
     for i, (p, keys) in enumerate(zip(plugins, owned)):
       if p.update is not None:
-        state, m = p.update(plugin_lib.own(aux, keys), transitions, env_steps, plugin_key(key, i))
+        state, m = p.update(plugin_lib.own(aux, keys), transitions, env_steps, plugin_key(key, i),
+                            **value(p, hyper))
         aux.update(state)
         metrics.update(m)
     return aux, metrics
@@ -308,11 +317,12 @@ def make_train(
     return batches, noise
 
   def gradient_updates(agent: SACState, batches, noise, aux, reg_scale, hyper):
-    update = make_update_with(aux)
+    update = make_update_with(aux, hyper)
+    sac_hyper = None if hyper is None else {k: v for k, v in hyper.items() if k in SWEEPABLE}
 
     def one(agent, xs):
       batch, eps = xs
-      return update(agent, batch, eps, aux, reg_scale, hyper)
+      return update(agent, batch, eps, aux, reg_scale, sac_hyper)
 
     agent, m = jax.lax.scan(one, agent, (batches, noise))
     return agent, jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), m)
@@ -339,14 +349,14 @@ def make_train(
         extras=None if extras_fn is None else jax.vmap(extras_fn)(ts.env_state, nxt),
     )
     env_steps = ts.env_steps + n_envs
-    aux, aux_metrics = plugins_update(ts.aux, transitions, env_steps, k_aux)
+    aux, aux_metrics = plugins_update(ts.aux, transitions, env_steps, k_aux, hyper)
 
     # Insert, then gather all G batches, outside the lax.cond. Measured on CPU: gathering from
     # the pre-insert buffer, or passing the buffer into the cond, made XLA copy the whole buffer
     # every step (O(capacity) per step instead of O(num_envs)); see also replay._take_rows.
     replay = replay_lib.insert(ts.replay, transitions)
     batches, noise = sample_batches(replay, upd_bits)
-    reg_scale = schedule(env_steps)
+    reg_scale = schedule(env_steps, hyper)
     learn = env_steps >= config.learning_starts
     upd = lambda agent: gradient_updates(agent, batches, noise, aux, reg_scale, hyper)
     _, metrics_shape = jax.eval_shape(upd, ts.agent)
@@ -376,8 +386,10 @@ def make_train(
     return new_ts, step_metrics
 
   def run_chunk(ts: TrainState, hyper: dict | None = None) -> tuple[TrainState, dict]:
-    """``steps_per_chunk`` training steps; returns chunk-averaged scalar metrics. ``hyper``: see
-    :func:`hdt.agents.sac.make_update` (per grid point under vmap)."""
+    """``steps_per_chunk`` training steps; returns chunk-averaged scalar metrics. ``hyper``: values of
+    ``sweepable`` names (per grid point under vmap): SAC fields (:func:`hdt.agents.sac.make_update`)
+    and the plug-ins' hyper (:mod:`hdt.agents.plugins`)."""
+    check_names(hyper or {}, sweepable)
     ts, m = jax.lax.scan(lambda ts, _: train_step(ts, hyper), ts, None, length=config.steps_per_chunk)
     n_learn = jnp.sum(m["learn"])
     learn_mean = lambda x: jnp.sum(x * m["learn"]) / jnp.maximum(n_learn, 1.0)
@@ -410,7 +422,7 @@ def make_train(
     )
     return ts, {"train": chunk_metrics, "eval": evaluate(ts.agent.policy_params, k_eval, ts.agent.obs_norm)}
 
-  return Trainer(init, run_chunk, evaluate, train, networks, config)
+  return Trainer(init, run_chunk, evaluate, train, networks, config, sweepable)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -501,12 +513,21 @@ def vmapped(trainer: Trainer, num_seeds: int = 1, hyper: bool = False) -> Vmappe
   )
 
 
-def grid_points(grid: dict | None) -> list[dict]:
-  """``{field: [v1, ..., vP]}`` (fields of hdt.agents.sac.SWEEPABLE, all lists of one length P) as
-  the P points ``[{field: v_i}]``; None -> ``[{}]``."""
+def check_names(hyper, sweepable: Sequence[str] = SWEEPABLE) -> None:
+  """Refuses (one line, listing what can be vmapped) names of ``hyper`` not in ``sweepable``."""
+  unknown = set(hyper) - set(sweepable)
+  if unknown:
+    raise ValueError(f"hyper-parameters {sorted(unknown)} cannot be vmapped (they change shapes, or are "
+                     f"neither SAC fields nor the plug-ins' weights); vmappable: {', '.join(sweepable)}")
+
+
+def grid_points(grid: dict | None, sweepable: Sequence[str] = SWEEPABLE) -> list[dict]:
+  """``{name: [v1, ..., vP]}`` (names of ``sweepable``, e.g. :attr:`Trainer.sweepable`: the fields of
+  hdt.agents.sac.SWEEPABLE and the plug-ins' hyper; all lists of one length P) as the P points
+  ``[{name: v_i}]``; None -> ``[{}]``."""
   if not grid:
     return [{}]
-  hyperparams(SACConfig(), {k: 0.0 for k in grid})  # names the fields that cannot be vmapped
+  check_names(grid, sweepable)
   sizes = {k: len(v) for k, v in grid.items()}
   if len(set(sizes.values())) != 1 or 0 in sizes.values():
     raise ValueError(f"hyper={grid!r}: give every field the same number (> 0) of values, one per grid "
@@ -568,11 +589,12 @@ def run(
     new TrainState, the history so far (name -> list of per-seed arrays) and the best record,
     before ``progress_fn``; e.g. to save resumable state. ``ts`` is donated to the next chunk:
     copy what you keep.
-  hyper: ``{field: [v1, ..., vP]}`` over fields of :data:`hdt.agents.sac.SWEEPABLE` (see
-    :func:`grid_points`): P grid points x the seeds train as ONE vmapped program; every returned
-    leading axis (and ``initial_state``'s) is then points x seeds, point-major (runs
+  hyper: ``{name: [v1, ..., vP]}`` over fields of :data:`hdt.agents.sac.SWEEPABLE` and the
+    plug-ins' hyper (``trainer.sweepable``, see :func:`grid_points`): P grid points x the seeds train
+    as ONE vmapped program; every returned leading axis (and ``initial_state``'s) is then points x seeds, point-major (runs
     ``p * len(seeds) + i``), and ``config``'s values of those fields are not used. Each run gets the
     same keys as the seed alone would, so a point matches its separate run up to float rounding.
+    Plug-in values replace that plug-in's defaults.
   cache_key: a string naming everything the trainer's programs depend on besides hdt's code (env and
     its options, config, plug-ins); with it, the compiled programs are saved and later runs with the
     same key load them (:func:`hdt.cache.compiled`) instead of tracing and compiling (one device).
@@ -603,11 +625,12 @@ def run(
   else:
     if plugins:
       raise ValueError(f"pass plugins {sorted(plugins)} to make_train, not with trainer=")
-    same = dict(total_env_steps=config.total_env_steps) | {k: getattr(config, k) for k in hyper or {}}
+    same = dict(total_env_steps=config.total_env_steps) | {k: getattr(config, k) for k in hyper or {}
+                                                           if k in SWEEPABLE}
     if dataclasses.replace(trainer.config, **same) != config:
       raise ValueError("trainer.config differs from config in more than total_env_steps"
                        + (" and the hyper fields" if hyper else ""))
-  points = grid_points(hyper)
+  points = grid_points(hyper, trainer.sweepable)
   n_runs = len(points) * len(seeds)
   labels = seeds if hyper is None else [
       f"{s} at {','.join(f'{k}={v}' for k, v in p.items())}" for p in points for s in seeds]

@@ -77,7 +77,14 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
               discriminator=dataclasses.asdict(disc))
   return Stage(env, config, meta, f"align {agent}<-{meta_a['agent']}", plugins=(al.plugin,),
                # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
-               save_extra=lambda ts: {"discriminator": ts.aux["params"]})
+               save_extra=lambda ts: {"discriminator": ts.aux["params"]}, point_meta=_point_meta)
+
+
+def _point_meta(meta: dict, hyper: dict) -> dict:
+  """The meta of a grid point over the discriminator's ``disc_weight`` (its w0, ``w_init``)."""
+  if "disc_weight" not in hyper:
+    return meta
+  return dict(meta, discriminator=dict(meta["discriminator"], w_init=hyper["disc_weight"]))
 
 
 def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):

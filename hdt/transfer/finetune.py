@@ -222,4 +222,6 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
                   init=init, kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
-  return Stage(env, config, meta, label, plugins=tuple(plugins), save_extra=sac_extras)
+  # a grid over the KL plug-in's kl_weight (hdt.transfer.pipeline.sweep) records each point's beta
+  point_meta = lambda meta, h: dict(meta, **({"kl": h["kl_weight"]} if "kl_weight" in h else {}))
+  return Stage(env, config, meta, label, plugins=tuple(plugins), save_extra=sac_extras, point_meta=point_meta)

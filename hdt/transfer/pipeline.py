@@ -170,19 +170,31 @@ def full_stage(agent: str, task: str, config: SACConfig | None = None, backend="
   return Stage(env, config, env_meta(env, "full", config, env_overrides=env_overrides), f"full {agent}/{task}")
 
 
-def sweep(level: str, runs: list[tuple[SACConfig, str | Path | None]], seeds=1, *, backend="auto",
-          quiet=False, overwrite=False, **stage) -> list[RunResult]:
-  """Trains each ``(config, out)`` of ``runs`` at ``level`` ("low": agent=..., "high": task=..., low=...,
-  "full": agent=..., task=...; further keywords as train_low/train_high/train_full). Configs that
-  differ only in fields of :data:`hdt.agents.sac.SWEEPABLE` (learning rates, tau, gamma, reward
-  scale) train together, seeds and grid points as one vmapped program; the other groups (other
-  network or batch sizes, num_envs, ...) in turn. Every run directory is written as by train_*.
-  Returns the results in the order of ``runs``."""
-  if level not in ("low", "high", "full"):
-    raise ValueError(f"level={level!r}: sweep trains 'low', 'high' or 'full'")
-  setup = {"low": low_stage, "high": high_stage, "full": full_stage}[level]
+def sweep(level: str, runs: list[tuple], seeds=1, *, backend="auto", quiet=False, overwrite=False,
+          **stage) -> list[RunResult]:
+  """Trains each ``(config, out)`` or ``(config, out, weights)`` of ``runs`` at ``level`` ("low": agent=...,
+  "high": task=..., low=..., "full": agent=..., task=..., "finetune": high=..., low=..., task=...,
+  "align": agent=..., imitate=...; further keywords as train_low/train_high/train_full/finetune_stage/
+  align_stage). ``weights``: the values of the level's plug-in weights, ``{"kl_weight": beta}``
+  (finetune: the KL weight, ``kl``) or ``{"disc_weight": w0}`` (align: the discriminator's ``w_init``),
+  the same names for every run. Configs that differ only in fields of
+  :data:`hdt.agents.sac.SWEEPABLE` (learning rates, tau, gamma, reward scale), whatever their weights,
+  train together, seeds and grid points as one vmapped program; the other groups (other network or
+  batch sizes, num_envs, ...) in turn. Every run directory is written as by train_* (its meta.json
+  records its weights). Returns the results in the order of ``runs``."""
+  from hdt.transfer.align import align_stage
+  from hdt.transfer.finetune import finetune_stage  # (finetune imports this module)
+  setup = {"low": low_stage, "high": high_stage, "full": full_stage, "align": align_stage,
+           "finetune": lambda **kw: finetune_stage(seeds=seeds, **kw)}.get(level)
+  if setup is None:
+    raise ValueError(f"level={level!r}: sweep trains 'low', 'high', 'full', 'finetune' or 'align'")
+  runs = [(r[0], r[1], dict(r[2]) if len(r) > 2 else {}) for r in runs]
+  names = sorted(runs[0][2]) if runs else []
+  if any(sorted(w) != names for _, _, w in runs):
+    raise ValueError(f"sweep: every run needs values of the same weights, got {[sorted(w) for _, _, w in runs]}")
+  check_weights(level, [w for _, _, w in runs], stage)
   groups: dict[tuple, list[int]] = {}
-  for i, (cfg, _) in enumerate(runs):
+  for i, (cfg, _, _) in enumerate(runs):
     shape = tuple((k, v) for k, v in dataclasses.asdict(cfg).items() if k not in SWEEPABLE)
     groups.setdefault(shape, []).append(i)
   results: list[RunResult | None] = [None] * len(runs)
@@ -190,10 +202,31 @@ def sweep(level: str, runs: list[tuple[SACConfig, str | Path | None]], seeds=1, 
   for members in groups.values():
     cfgs = [runs[i][0] for i in members]
     varied = [k for k in SWEEPABLE if len({getattr(c, k) for c in cfgs}) > 1]
-    st = setup(config=cfgs[0], backend=backend, **stage)
-    points = [({k: getattr(runs[i][0], k) for k in varied}, runs[i][1]) for i in members]
+    kw = dict(stage)
+    if level == "finetune" and "kl_weight" in names:  # the KL plug-in exists only for kl > 0
+      kw["kl"] = max(runs[i][2]["kl_weight"] for i in members) or 1.0
+    st = setup(config=cfgs[0], backend=backend, **kw)
+    points = [({k: getattr(runs[i][0], k) for k in varied} | runs[i][2], runs[i][1]) for i in members]
     if len(points) > 1:
       st = dataclasses.replace(st, label=f"{st.label} x{len(points)} points")
     for i, r in zip(members, run_points(st, points, options)):
       results[i] = r
   return results
+
+
+WEIGHTS = {"finetune": ("kl_weight",), "align": ("disc_weight",)}  # the plug-in weights sweep can vary
+
+
+def check_weights(level: str, weights: list[dict], stage: dict) -> None:
+  """Refuses (one line) weights the level has no plug-in for, and values its stage would refuse."""
+  from hdt.agents.discriminator import DiscConfig
+  for w in weights:
+    unknown = set(w) - set(WEIGHTS.get(level, ()))
+    if unknown:
+      raise ValueError(f"sweep {level}: {sorted(unknown)} cannot be varied; vmappable: "
+                       f"{', '.join(SWEEPABLE + WEIGHTS.get(level, ()))}")
+    kl = w.get("kl_weight", 0.0)
+    if not (np.isfinite(kl) and kl >= 0):
+      raise ValueError(f"kl_weight={kl}: the KL weight must be a finite number >= 0 (0 = plain finetuning)")
+    if "disc_weight" in w:
+      dataclasses.replace(stage.get("disc", DiscConfig()), w_init=w["disc_weight"])  # checks [0, 1]

@@ -19,7 +19,7 @@ import numpy as np
 
 from hdt.agents import train as sac_train
 from hdt.agents.plugins import Plugin
-from hdt.agents.sac import SACConfig
+from hdt.agents.sac import SWEEPABLE, SACConfig
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import rundir
 from hdt.transfer.card import FORMAT_KEY, PolicyCard
@@ -71,6 +71,9 @@ class Stage:
   # save_extra(final TrainState) -> {name: pytree with a seed axis}, saved next to "policy" and "q"
   # in every seed's checkpoint (e.g. an aligned LL's discriminator, an HL's target critics)
   save_extra: Callable[[Any], dict] | None = None
+  # point_meta(meta, {plug-in hyper name: value}) -> the meta.json of a grid point that sets the
+  # plug-ins' hyper (hdt.agents.plugins), e.g. its KL weight; default: meta with them as "plugin_hyper"
+  point_meta: Callable[[dict, dict], dict] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,13 +114,17 @@ def run_stage(stage: Stage, options: RunOptions = RunOptions()) -> RunResult:
 
 def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -> list[RunResult]:
   """:func:`run_stage` for grid points ``[(hyper, out)]`` (hyper: values of SWEEPABLE fields replacing
-  ``stage.config``'s; ``options.out`` is not used) trained together as one vmapped program
+  ``stage.config``'s, and of the stage's plug-ins' hyper, e.g. ``kl_weight``, recorded in the point's
+  meta by ``stage.point_meta``; ``options.out`` is not used) trained together as one vmapped program
   (``hdt.agents.train.run(hyper=...)``); each point writes its own run directory as if trained
   alone. Only a single point can resume."""
   env, config, meta = stage.env, stage.config, stage.meta
   resume, overwrite = options.resume, options.overwrite
   grid = {k: [h[k] for h, _ in points] for k in points[0][0]}
-  configs = [dataclasses.replace(config, **h) for h, _ in points]
+  configs = [dataclasses.replace(config, **{k: v for k, v in h.items() if k in SWEEPABLE}) for h, _ in points]
+  plugin_values = [{k: float(v) for k, v in h.items() if k not in SWEEPABLE} for h, _ in points]
+  point_meta = stage.point_meta or (lambda meta, values: dict(meta, plugin_hyper=values))
+  metas = [point_meta(meta, v) if v else meta for v in plugin_values]
   check_train_memory(env, config, options.seeds, len(points))
   seeds = sac_train.seed_list(options.seeds)
   if resume is not False and len(points) > 1:
@@ -132,8 +139,8 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       dict(env=type(env).__name__, backend=backend, meta=meta, config=dataclasses.asdict(config)),
       sort_keys=True, default=str)
   trainer = sac_train.make_train(env, config, plugins=stage.plugins)
-  infos = [dict(config=dataclasses.asdict(c), meta=dict(meta, sac=dataclasses.asdict(c)) if grid else meta,
-                seeds=seeds) for c in configs]
+  infos = [dict(config=dataclasses.asdict(c), meta=dict(m, sac=dataclasses.asdict(c)) if grid else m,
+                seeds=seeds) for c, m in zip(configs, metas)]
   if source is not None:
     _check_resumable(source, infos[0])
   S = len(seeds)

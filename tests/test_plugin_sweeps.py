@@ -1,0 +1,130 @@
+"""Grids over the plug-ins' weights (issue 17): the KL weight of finetuning and the discriminator
+weight of alignment vary over grid points trained as one vmapped program, like SAC fields."""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from hdt.agents import train as sac_train
+from hdt.agents.discriminator import DiscConfig
+from hdt.agents.kl import kl_plugin
+from hdt.agents.plugins import Plugin
+from hdt.transfer import configs
+from hdt.transfer.align import align_low
+from hdt.transfer.finetune import finetune_high
+from hdt.transfer.pipeline import sweep
+
+
+def _same_runs(grid_res, alone_res):
+  """A grid point's history and parameters equal its separate run's (float rounding apart; rollouts
+  through the LL and the physics amplify it in the evaluations)."""
+  for k in set(grid_res.history) & set(alone_res.history) - {"walltime"}:
+    tol = dict(rtol=1e-3, atol=1e-3) if k.startswith("eval/") else dict(rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(grid_res.history[k], alone_res.history[k], equal_nan=True, err_msg=k, **tol)
+  for a, b in zip(jax.tree.leaves(grid_res.params), jax.tree.leaves(alone_res.params)):
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_kl_weight_grid_matches_separate_finetune_runs(point_low, point_high, tmp_path):
+  """Two KL weights (0 and 3) x 1 seed as one vmapped program equal two finetune_high runs."""
+  cfg = configs.high_config("waypoint", total_env_steps=50, num_envs=2, steps_per_chunk=25,
+                            num_eval_episodes=2, updates_per_step=2)
+  common = dict(high=point_high.run_dir, low=point_low.run_dir, task="waypoint")
+  betas = [0.0, 3.0]
+  runs = [(cfg, tmp_path / f"kl{b:g}", {"kl_weight": b}) for b in betas]
+  grid = sweep("finetune", runs, seeds=1, quiet=True, **common)
+  for b, res in zip(betas, grid):
+    assert json.loads((res.run_dir / "meta.json").read_text())["kl"] == b
+    _same_runs(res, finetune_high(kl=b, config=cfg, seeds=1, quiet=True, **common))
+  assert np.all(grid[0].history["kl_weight"] == 0) and np.all(grid[1].history["kl_weight"] > 0)
+  assert not np.allclose(grid[0].history["actor_loss"], grid[1].history["actor_loss"], rtol=1e-3)
+
+
+def test_disc_weight_grid_matches_separate_align_runs(point_low, tmp_path):
+  cfg = configs.low_config("point", total_env_steps=200, num_envs=2, steps_per_chunk=100, batch_size=16,
+                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2, learning_starts=50,
+                           updates_per_step=1)
+  disc = DiscConfig(buffer_size=500, start=0)
+  common = dict(imitate=point_low.run_dir, n_offline=256)
+  ws = [0.1, 0.6]
+  runs = [(cfg, tmp_path / f"w{w}", {"disc_weight": w}) for w in ws]
+  grid = sweep("align", runs, seeds=1, quiet=True, agent="point", disc=disc, **common)
+  for w, res in zip(ws, grid):
+    assert json.loads((res.run_dir / "meta.json").read_text())["discriminator"]["w_init"] == w
+    alone = align_low("point", config=cfg, disc=DiscConfig(buffer_size=500, start=0, w_init=w), seeds=1,
+                      quiet=True, **common)
+    _same_runs(res, alone)
+  assert grid[0].history["disc/w"][0, 0] < grid[1].history["disc/w"][0, 0]
+
+
+def test_unknown_grid_names_are_refused_naming_the_vmappable_ones():
+  from toy_env import PointGoal
+  from hdt.agents.sac import SACConfig
+  env, cfg = PointGoal(), SACConfig(hidden_sizes=(8,), batch_size=8, buffer_size=100, num_envs=2,
+                                    steps_per_chunk=5, total_env_steps=10, learning_starts=0)
+  nets = sac_train.make_networks(env, cfg)
+  trainer = sac_train.make_train(env, cfg, plugins=[kl_plugin(nets.policy_apply, nets.policy_init(
+      jax.random.PRNGKey(0)), 1.0, 10)])
+  assert "kl_weight" in trainer.sweepable and "actor_lr" in trainer.sweepable
+  with pytest.raises(ValueError, match=r"\['disc_weight'\] cannot be vmapped.*actor_lr.*kl_weight"):
+    sac_train.run(env, cfg, [0], trainer=trainer, hyper={"disc_weight": [0.1, 0.2]})
+  with pytest.raises(ValueError, match="cannot be vmapped.*vmappable: actor_lr"):  # no plug-in: no kl_weight
+    sac_train.run(env, cfg, [0], hyper={"kl_weight": [0.1, 0.2]})
+  with pytest.raises(ValueError, match="'kl_weight', which plug-in 'kl' already uses"):
+    sac_train.make_train(env, cfg, plugins=[kl_plugin(nets.policy_apply, {}, 1.0, 10),
+                                            Plugin("other", hyper={"kl_weight": 1.0})])
+  with pytest.raises(ValueError, match="'tau', which SAC already uses"):
+    sac_train.make_train(env, cfg, plugins=[Plugin("other", hyper={"tau": 1.0})])
+  with pytest.raises(ValueError, match=r"sweep finetune: \['disc_weight'\] cannot be varied"):
+    sweep("finetune", [(cfg, None, {"disc_weight": 0.3})], high="h", low="l", task="waypoint")
+
+
+def test_cli_sweep_finetune_writes_one_run_per_kl_weight(point_low, point_high, tmp_path, monkeypatch, capsys):
+  from hdt.cli import main
+  monkeypatch.setitem(configs.PRESETS["smoke"], "high", dict(  # a smaller smoke budget, for time
+      total_env_steps=50, num_envs=2, updates_per_step=1, steps_per_chunk=25, num_eval_episodes=2))
+  out = tmp_path / "sw"
+  assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
+               "--task", "waypoint", "--grid", "kl_weight=0,1", "--preset", "smoke", "--quiet",
+               "--out", str(out)]) == 0
+  for kl in (0, 1):
+    meta = json.loads((out / f"kl_weight={kl}" / "meta.json").read_text())
+    assert meta["kl"] == kl and meta["finetuned_from"]["path"] == str(point_high.run_dir)
+  assert "kl_weight=0" in (out / "sweep.md").read_text()
+  assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
+               "--task", "waypoint", "--grid", "disc_weight=0.1", "--out", str(tmp_path / "no")]) == 2
+  assert "not a SAC field nor a weight of sweep finetune (kl_weight)" in capsys.readouterr().err
+  assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
+               "--task", "waypoint", "--grid", "kl_weight=1,-1", "--out", str(tmp_path / "no")]) == 1
+  assert "the KL weight must be a finite number >= 0" in capsys.readouterr().err
+  assert main(["sweep", "align", "--agent", "point", "--imitate", str(point_low.run_dir),
+               "--grid", "disc_weight=0.3,1.5", "--out", str(tmp_path / "no")]) == 1
+  assert "w_init=1.5 must be in [0, 1]" in capsys.readouterr().err
+  assert main(["sweep", "align", "--agent", "point", "--grid", "disc_weight=0.3"]) == 2
+  assert "sweep align needs --imitate" in capsys.readouterr().err
+  assert not (tmp_path / "no").exists()
+
+
+def test_weights_as_hyper_give_the_numbers_of_before():
+  """Without a grid, the KL schedule (kl_weight x the anneal from 1) and the discriminator weight
+  (disc_weight as w0) are bit for bit those of linear_anneal(beta) and DiscConfig.w_init; so is a
+  float32 grid value. (tests/test_plugins.py trains both plug-ins exactly as the old callables.)"""
+  import jax.numpy as jnp
+  from hdt.agents import discriminator as D
+  from hdt.agents.kl import linear_anneal
+  steps = jnp.arange(0, 2500, 7, dtype=jnp.int32)
+  for beta in (0.0, 0.01, 1 / 3, 1.0, 10.0):
+    for anneal in (0, 777, 1000.4):
+      p = kl_plugin(lambda params, obs: (obs, obs), {}, beta, anneal)
+      old = jax.jit(jax.vmap(linear_anneal(beta, anneal)))(steps)
+      new = jax.jit(jax.vmap(lambda s: p.schedule(s, **p.hyper)))(steps)  # the default, a constant
+      grid = jax.jit(jax.vmap(lambda s, w: p.schedule(s, kl_weight=w), (0, None)))(steps, jnp.float32(beta))
+      np.testing.assert_array_equal(new, old)
+      np.testing.assert_array_equal(grid, old)
+  for decay in (True, False):
+    cfg = DiscConfig(w_init=0.3, w_decay=decay)
+    old = jax.jit(lambda: D.reward_weight(cfg, steps, 2000))()  # training runs jitted
+    np.testing.assert_array_equal(jax.jit(lambda: D.reward_weight(cfg, steps, 2000, 0.3))(), old)
+    np.testing.assert_array_equal(jax.jit(lambda w: D.reward_weight(cfg, steps, 2000, w))(jnp.float32(0.3)), old)
