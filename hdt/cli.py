@@ -134,7 +134,8 @@ def _training(p, env_opts=True):
   p.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto",
                  help="physics backend: auto = native MuJoCo on CPU, MJX on accelerators (default: %(default)s)")
   p.add_argument("--resume", action="store_true",
-                 help="continue the run in --out from its last saved training state")
+                 help="continue the run in --out from its last saved training state; with a larger "
+                      "--total-env-steps, also a finished run (not align/finetune)")
   p.add_argument("--overwrite", action="store_true",
                  help="replace an existing hdt run in --out as a whole (never a directory hdt did not write)")
   if env_opts:

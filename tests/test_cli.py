@@ -145,6 +145,7 @@ import dataclasses  # noqa: E402
 import hashlib  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hdt.transfer import checkpoint as ckpt  # noqa: E402
@@ -449,3 +450,23 @@ def test_broken_robot_file_is_a_one_line_error(tmp_path, capsys):
   err = capsys.readouterr().err.strip()
   assert "no site named 'goal_point'" in err and "ROBOTS.md" in err and len(err.splitlines()) == 1, err
   assert not (tmp_path / "run").exists()
+
+
+def test_resume_with_a_larger_budget_extends_a_finished_run_exactly(runs, tmp_path, capsys):
+  run, straight = tmp_path / "low", tmp_path / "straight"
+  shutil.copytree(runs / "low", run)  # finished at 800 env steps
+  longer = [a if a != "800" else "1200" for a in TINY_LOW]
+  assert main(["train", "low", "--agent", "point", "--out", str(run), "--resume", *longer]) == 0
+  assert main(["train", "low", "--agent", "point", "--out", str(straight), *longer]) == 0
+  assert json.loads((run / "config.json").read_text())["total_env_steps"] == 1200
+  drop_time = lambda path: [r for r in csv.DictReader(open(path))]
+  a, b = drop_time(run / "metrics.csv"), drop_time(straight / "metrics.csv")
+  assert len(a) == len(b) and len(a) > 0
+  for ra, rb in zip(a, b):
+    assert {k: v for k, v in ra.items() if k != "walltime"} == {k: v for k, v in rb.items() if k != "walltime"}
+  for i in (0, 1):
+    pa, pb = ckpt.load(run, i)[0], ckpt.load(straight, i)[0]
+    assert all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(pa), jax.tree.leaves(pb)))
+  # a budget below what was trained is refused in one line
+  assert main(["train", "low", "--agent", "point", "--out", str(run), "--resume", *TINY_LOW]) != 0
+  assert "already trained 1200 env steps" in capsys.readouterr().err

@@ -86,7 +86,9 @@ class RunOptions:
   resume: False (default) starts afresh; True continues the interrupted run in ``out`` from its
     ``out/state`` (same arguments and config; refused with a CheckpointError naming what differs);
     a run directory continues that run (writing to ``out``, default the same directory). The
-    continued run equals an uninterrupted one exactly (same seeds, same device).
+    continued run equals an uninterrupted one exactly (same seeds, same device). A larger
+    ``config.total_env_steps`` than the saved run's extends it, a finished run too (not for stages
+    with plug-ins, whose schedules scale with the budget).
   save_every: env steps between saves of the resumable state ``out/state`` (whole TrainState and
     history, written atomically); default about every 10% of training; always saved at the end.
   overwrite: replace an existing run in ``out`` as a whole (without it, an existing run is refused;
@@ -142,7 +144,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
   infos = [dict(config=dataclasses.asdict(c), meta=dict(m, sac=dataclasses.asdict(c)) if grid else m,
                 seeds=seeds) for c, m in zip(configs, metas)]
   if source is not None:
-    _check_resumable(source, infos[0])
+    _check_resumable(source, infos[0], extendable=not stage.plugins)
   S = len(seeds)
   part = (lambda tree, p: tree) if len(points) == 1 else (
       lambda tree, p: jax.tree.map(lambda x: x[p * S:(p + 1) * S], tree))
@@ -312,10 +314,27 @@ def _save_steps(config: SACConfig, save_every) -> int:
   return int(save_every)
 
 
-def _check_resumable(source: Path, info: dict) -> None:
+def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None:
   """Refuses (reading only) to resume ``source`` if its run was started with another configuration,
-  run metadata or seeds than ``info`` describes, or a checkpoint it depends on changed since."""
+  run metadata or seeds than ``info`` describes, or a checkpoint it depends on changed since.
+
+  ``extendable``: a larger ``total_env_steps`` continues the run past its end (a finished run too),
+  exactly as an uninterrupted run of the larger budget; only without plug-ins, whose schedules
+  (discriminator weight and lr, KL weight) are fractions of the budget."""
   saved = ckpt.load_state_info(source)
+  budget = lambda d: (d.get("config") or {}).get("total_env_steps")
+  if budget(saved) != budget(info):
+    done = int(saved.get("env_steps", 0))
+    if not extendable:
+      raise ckpt.CheckpointError(
+          f"cannot resume {source} with total_env_steps={budget(info)} (saved {budget(saved)}): its plug-ins' "
+          f"schedules (discriminator, KL) are fractions of the budget; resume with --total-env-steps "
+          f"{budget(saved)}")
+    if not isinstance(budget(info), int) or budget(info) < done:
+      raise ckpt.CheckpointError(
+          f"cannot resume {source} with total_env_steps={budget(info)}: it has already trained {done} env "
+          f"steps; give --total-env-steps >= {done}")
+    saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)))
   for key, kind in (("config", dict), ("meta", dict), ("seeds", list)):
     if not isinstance(saved.get(key), kind):
       raise ckpt.CheckpointError(f"the training state in {source} has {key}={saved.get(key)!r}: state.json was "
