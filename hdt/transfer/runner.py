@@ -322,9 +322,13 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
   exactly as an uninterrupted run of the larger budget; only without plug-ins, whose schedules
   (discriminator weight and lr, KL weight) are fractions of the budget."""
   saved = ckpt.load_state_info(source)
+  for key, kind in (("config", dict), ("meta", dict), ("seeds", list)):
+    if not isinstance(saved.get(key), kind):
+      raise ckpt.CheckpointError(f"the training state in {source} has {key}={saved.get(key)!r}: state.json was "
+                                 f"edited or damaged; restore it, or start over with --overwrite")
   budget = lambda d: (d.get("config") or {}).get("total_env_steps")
   if budget(saved) != budget(info):
-    done = int(saved.get("env_steps", 0))
+    done = saved.get("env_steps") if isinstance(saved.get("env_steps"), int) else 0
     if not extendable:
       raise ckpt.CheckpointError(
           f"cannot resume {source} with total_env_steps={budget(info)} (saved {budget(saved)}): its plug-ins' "
@@ -335,10 +339,6 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
           f"cannot resume {source} with total_env_steps={budget(info)}: it has already trained {done} env "
           f"steps; give --total-env-steps >= {done}")
     saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)))
-  for key, kind in (("config", dict), ("meta", dict), ("seeds", list)):
-    if not isinstance(saved.get(key), kind):
-      raise ckpt.CheckpointError(f"the training state in {source} has {key}={saved.get(key)!r}: state.json was "
-                                 f"edited or damaged; restore it, or start over with --overwrite")
   # meta["sac"] repeats the config; a state saved before the card format was recorded has format 1
   no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m not in ("sac", FORMAT_KEY)} if k == "meta"
                           else d.get(k)) for k in info}
