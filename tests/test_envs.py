@@ -195,3 +195,14 @@ def test_steps_ll_pretraining_terrain_matches_steps_observations():
   assert bool(jnp.all((rays > 0) & (rays < 4.0)))  # every ray sees the floor (or a leg) in range
   with pytest.raises(ValueError, match="terrain"):
     E.make("ant", "reach", terrain="lava")
+
+
+def test_tasks_declare_the_sensors_they_read():
+  from hdt.envs.env import AgentTaskEnv
+  from hdt.envs.registry import agent_spec
+  q = lambda env: env.quantities(env.reset(jax.random.PRNGKey(0)).physics)
+  assert {"block", "block_vel"} <= set(q(E.make("arm3", "push1")))
+  assert "block" not in q(E.make("arm3", "insert"))  # declared by Push only
+  bad = type("BadPush", (Push,), {"sensors": {"block": "block/no_such_sensor"}})
+  with pytest.raises(ValueError, match="no_such_sensor"):
+    AgentTaskEnv(agent_spec("arm3"), bad())

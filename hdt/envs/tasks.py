@@ -41,6 +41,8 @@ class Task:
   ll_points: ClassVar[int] = 1
   agent_variant: ClassVar[str] = ""  # the agents' scene variant (hdt.envs.agents.VARIANTS)
   ll_terrain: ClassVar[str] = ""  # the reach terrain an LL under this task must be trained on ("": any)
+  # Quantities the task reads besides the goal-space point: name in ``q`` -> MJCF sensor of its scene.
+  sensors: ClassVar[dict[str, str]] = {}
 
   # -- defaults read by training and reporting (class data, not env options) ----------------------
   # The paper's HL budget in HL decisions (its HL "Timesteps", Appendix D); also the Full baseline's
@@ -308,6 +310,7 @@ class Push(Task):
   objects: tuple = (("block.xml", "block/"),)
   hl_budget: ClassVar[int] = 500_000
   headline: ClassVar[str] = "success"
+  sensors: ClassVar[dict[str, str]] = {"block": "block/block_pos", "block_vel": "block/block_vel"}
 
   def customize(self, spec):
     spec.site("block/destination").pos = [*self.destination, 0.001]
