@@ -203,8 +203,7 @@ class Alignment(NamedTuple):
     """The alignment as one :class:`hdt.agents.plugins.Plugin` (combinable with others); its hyper
     ``disc_weight`` is the reward weight w0 (``cfg.w_init``), vmappable over a grid."""
     return Plugin(name="discriminator", init=lambda key, agent: (agent, self.aux_init(key)),
-                  update=lambda aux, tr, steps, key, disc_weight: self.aux_update(aux, tr, steps, key, disc_weight),
-                  reward=lambda aux, batch, disc_weight: self.reward_fn(aux, batch, disc_weight),
+                  update=self.aux_update, reward=self.reward_fn,
                   transition_extras=self.transition_extras, hyper={"disc_weight": float(self.cfg.w_init)})
 
   @property
@@ -277,7 +276,7 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     upd = jax.tree_util.tree_map(lambda u: -lr * u, upd)
     return optax.apply_updates(params, upd), opt_state, loss, acc
 
-  def aux_update(aux, transitions, env_steps, key, w_init=None):
+  def aux_update(aux, transitions, env_steps, key, disc_weight=None):  # disc_weight: w0, see reward_weight
     k_bits, k_a = jax.random.split(key)
     x_b = inputs(transitions).reshape(-1, n_in)
     n = x_b.shape[0]
@@ -317,12 +316,12 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     n_on = jnp.maximum(jnp.sum(on), 1.0)
     step = env_steps - 1
     metrics = {"disc/loss": jnp.sum(loss * on) / n_on, "disc/acc": jnp.sum(acc * on) / n_on,
-               "disc/w": reward_weight(cfg, step, T, w_init), "disc/lr": disc_lr(cfg, step, T)}
+               "disc/w": reward_weight(cfg, step, T, disc_weight), "disc/lr": disc_lr(cfg, step, T)}
     out.update(params=params, opt_state=opt_state, buf=buf, ptr=ptr, size=size, env_steps=env_steps)
     return out, metrics
 
-  def reward_fn(aux, batch, w_init=None):
+  def reward_fn(aux, batch, disc_weight=None):
     d = jax.nn.sigmoid(apply(aux["params"], inputs(batch)))
-    return shaped_reward(cfg, batch.reward, d, aux["env_steps"] - 1, T, w_init)
+    return shaped_reward(cfg, batch.reward, d, aux["env_steps"] - 1, T, disc_weight)
 
   return Alignment(aux_init, aux_update, reward_fn, extras, apply, cfg)

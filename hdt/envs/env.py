@@ -73,13 +73,13 @@ class AgentTaskEnv:
     def sensor(name):
       i = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SENSOR, name)
       return None if i < 0 else np.arange(m.sensor_adr[i], m.sensor_adr[i] + m.sensor_dim[i])
-    missing = [s for s in task.sensors.values() if sensor(s) is None]
+    found = {name: sensor(s) for name, s in [
+        ("point", task.point_sensor), ("tip", AGENT_PREFIX + "goal_point"), *task.sensors.items()]}
+    missing = [s for name, s in task.sensors.items() if found[name] is None]
     if missing:
       raise ValueError(f"task {task.name!r} reads sensors {missing} that its scene does not define; add them "
                        f"to the task's scene XML")
-    self._sensor = {name: sensor(s) for name, s in [
-        ("point", task.point_sensor), ("tip", AGENT_PREFIX + "goal_point"), *task.sensors.items()]
-        if sensor(s) is not None}
+    self._sensor = {name: idx for name, idx in found.items() if idx is not None}
     names = [m.sensor(i).name for i in range(m.nsensor)]
     self._touch = np.concatenate([sensor(n) for n in names if n.startswith(AGENT_PREFIX + "touch")]
                                  or [np.zeros(0, int)])

@@ -156,6 +156,12 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   return run_stage(stage, RunOptions(seeds, out, quiet, resume, save_every, overwrite))
 
 
+def check_kl(kl: float, name: str = "kl") -> None:
+  """Refuses (one line) a KL weight that is not a finite number >= 0."""
+  if not (kl >= 0 and np.isfinite(kl)):
+    raise ValueError(f"{name}={kl}: the KL weight must be a finite number >= 0 (0 = plain finetuning)")
+
+
 def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                    config: SACConfig | None = None, seeds=1, anneal_frac: float = 0.5,
                    mode: str = "forward", mean_only: bool = False, backend="auto", lr: float | None = None,
@@ -168,8 +174,7 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
     raise ValueError(f"init={init!r}: use 'sac' (A's whole SAC) or 'policy' (A's policy only)")
   if mode not in MODES:
     raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi_B || pi_A)) or 'reverse' (KL(pi_A || pi_B))")
-  if not (kl >= 0 and np.isfinite(kl)):
-    raise ValueError(f"kl={kl}: the KL weight must be a finite number >= 0 (0 = plain finetuning)")
+  check_kl(kl)
   if not (anneal_frac >= 0 and np.isfinite(anneal_frac)):
     raise ValueError(f"anneal_frac={anneal_frac}: must be >= 0 (fraction of training over which "
                      f"beta decays to 0)")

@@ -220,13 +220,12 @@ WEIGHTS = {"finetune": ("kl_weight",), "align": ("disc_weight",)}  # the plug-in
 def check_weights(level: str, weights: list[dict], stage: dict) -> None:
   """Refuses (one line) weights the level has no plug-in for, and values its stage would refuse."""
   from hdt.agents.discriminator import DiscConfig
+  from hdt.transfer.finetune import check_kl  # (finetune imports this module)
   for w in weights:
     unknown = set(w) - set(WEIGHTS.get(level, ()))
     if unknown:
       raise ValueError(f"sweep {level}: {sorted(unknown)} cannot be varied; vmappable: "
                        f"{', '.join(SWEEPABLE + WEIGHTS.get(level, ()))}")
-    kl = w.get("kl_weight", 0.0)
-    if not (np.isfinite(kl) and kl >= 0):
-      raise ValueError(f"kl_weight={kl}: the KL weight must be a finite number >= 0 (0 = plain finetuning)")
+    check_kl(w.get("kl_weight", 0.0), "kl_weight")
     if "disc_weight" in w:
       dataclasses.replace(stage.get("disc", DiscConfig()), w_init=w["disc_weight"])  # checks [0, 1]
