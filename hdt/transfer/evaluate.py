@@ -73,7 +73,8 @@ def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
   seed = trained_over(hm, low)
   if seed is None or not hm["low"].get("sha256"):
     return  # another LL (a transfer, not a dependency), or trained before hashes were recorded
-  if ckpt.content_hash(low, seed) != hm["low"]["sha256"]:
+  from hdt.transfer import zoo
+  if hm["low"]["sha256"] not in zoo.hash_aliases(low, seed):
     raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
                                f"content hash differs: was it retrained?); retrain the HL over it, or "
                                f"restore the LL it was trained over")
@@ -187,7 +188,8 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   which["metric"] = get_task(task or policy.meta["task"]).headline  # what a table reports
   if policy.low_meta is not None:
     which["low_params"] = policy.low_meta.get("params", "final")
-  return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary)
+  spread = {"episode_return_std": np.asarray(out["return_std"]).tolist()}  # per seed, across episodes
+  return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary, **spread)
 
 
 def zero_shot_matrix(highs: dict[str, str | Path], lows: dict[str, str | Path], task: str,

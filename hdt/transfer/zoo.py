@@ -1,9 +1,11 @@
 """The model zoo: trained policies committed under ``zoo/`` and named ``zoo:NAME`` wherever a run
 directory is accepted (``hdt eval --high zoo:arm_point/push1 --low zoo:arm_point/low``).
 
-An entry is a policy-only copy of a run directory (``meta.json``, ``config.json``, ``metrics.csv``,
-``seed_*/``; no resumable ``state/``) plus ``zoo.json``: the command that trained it, its budget, its
-evaluation numbers and a small deterministic re-evaluation (``check``) that tests replay exactly.
+An entry is a policy-only copy of a run directory (``meta.json``, ``config.json``, ``seed_*/``; no
+resumable ``state/``) plus ``zoo.json``: the command that trained it, its budget, its evaluation numbers
+and a small deterministic re-evaluation (``check``) that tests replay exactly. An LL entry keeps only its
+policies (final and best) and their observation statistics: nothing loads an LL's critics. An HL entry
+keeps its whole final SAC, which KL finetuning starts from (the authors' finetune_high_level_kl.py).
 """
 
 from __future__ import annotations
@@ -13,11 +15,15 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
+import orbax.checkpoint as ocp
+
 import hdt
+from hdt.agents import normalizer
 
 ZOO_DIR = Path(__file__).resolve().parents[2] / "zoo"
 PREFIX = "zoo:"
-CHECK_EPISODES, CHECK_KEY = 4, 7
+CHECK_EPISODES, CHECK_KEY = 16, 7
 
 
 class ZooError(ValueError):
@@ -80,19 +86,54 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
       if isinstance(m.get("low"), dict):
         m["low"]["path"] = low
         mp.write_text(json.dumps(m, indent=1))
+  slimmed = _slim(tmp) if meta.get("level") == "low" else None
   tmp_name = str(tmp.relative_to(ZOO_DIR))
   (tmp / "zoo.json").write_text("{}")  # so that zoo:<tmp> resolves during the evaluations below
   try:
     full = _evaluate(PREFIX + tmp_name, low, task, episodes, 1234, **task_kw)
     check = _evaluate(PREFIX + tmp_name, low, task, CHECK_EPISODES, CHECK_KEY, **task_kw)
-    _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check)
+    _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check, slimmed)
   except BaseException:
     shutil.rmtree(tmp, ignore_errors=True)  # nothing half-written is left in zoo/
     raise
   return dest
 
 
-def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check):
+LL_KEEP = ("policy", normalizer.KEY)  # what an LL entry keeps of each seed's parameters
+
+
+def _slim(entry: Path) -> list[dict]:
+  """Drops all but ``LL_KEEP`` from every seed's final and best parameters of the LL copy ``entry``
+  (in place). Returns per seed the content hash before and after, so that an HL trained over the
+  full LL still composes with the slim copy (:func:`hash_aliases`)."""
+  from hdt.transfer import checkpoint as ckpt  # it reads zoo names through resolve()
+  out = []
+  for seed in ckpt.list_seeds(entry):
+    before = ckpt.content_hash(entry, seed)
+    d = ckpt.seed_dir(entry, seed)
+    for path in (d / "params", d / "best" / "params"):
+      if path.is_dir():
+        params = ocp.PyTreeCheckpointer().restore(path.resolve())
+        keep = {k: v for k, v in params.items() if k in LL_KEEP}
+        new = path.with_name(path.name + ".slim")
+        ocp.PyTreeCheckpointer().save(new.resolve(), keep)
+        shutil.rmtree(path)
+        new.rename(path)
+    out.append({"seed": seed, "source_sha256": before, "sha256": ckpt.content_hash(entry, seed)})
+  return out
+
+
+def hash_aliases(low, seed: int) -> set[str]:
+  """Content hashes that name seed ``seed`` of the LL ``low`` as it is now: its own, plus, for a slim
+  zoo entry whose files are unchanged since export, that of the full run it was exported from."""
+  from hdt.transfer import checkpoint as ckpt
+  now = ckpt.content_hash(low, seed)
+  d = resolve(str(low))
+  info = json.loads((Path(d) / "zoo.json").read_text()) if str(low).startswith(PREFIX) else {}
+  return {now} | {s["source_sha256"] for s in info.get("slim") or [] if s["seed"] == seed and s["sha256"] == now}
+
+
+def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check, slimmed=None):
   sac = meta.get("sac", {})
   info = dict(name=name, level=meta["level"], agent=meta["agent"], task=task, task_options=task_kw,
               low=low, command=command,
@@ -101,6 +142,8 @@ def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check
               seeds=meta.get("seeds"), evaluation=full, check=dict(episodes=CHECK_EPISODES, key=CHECK_KEY,
                                                                    result=check),
               hdt_version=hdt.__version__, exported=datetime.date.today().isoformat())
+  if slimmed is not None:
+    info["slim"] = slimmed
   (tmp / "zoo.json").write_text(json.dumps(info, indent=1))
   if dest.exists():
     shutil.rmtree(dest)
@@ -114,6 +157,26 @@ def recheck(name: str) -> tuple[dict, dict]:
   c = info["check"]
   fresh = _evaluate(PREFIX + name, info["low"], info["task"], c["episodes"], c["key"], **info["task_options"])
   return c["result"], fresh
+
+
+def within_noise(recorded: dict, fresh: dict, z: float = 4.0) -> list[str]:
+  """What differs between two evaluations of the same episodes by more than sampling noise: the mean
+  over all episodes of the return and of the success rate, within ``z`` standard errors (the recorded
+  spread across episodes; a Bernoulli one for success), plus one episode's worth. Same-machine replays
+  are exact; on another CPU a few chaotic episodes may end otherwise, a broken checkpoint moves all."""
+  n = len(recorded["seeds"]) * recorded["episodes"]
+  out = []
+  ret, ret_new = recorded["return_mean"], fresh["return_mean"]
+  sd = float(np.mean(recorded.get("episode_return_std", [0.0])))
+  tol = z * sd / np.sqrt(n) + 1e-3 * abs(ret) + 1e-3
+  if abs(ret_new - ret) > tol:
+    out.append(f"return {ret_new:.4g} vs recorded {ret:.4g} (tolerance {tol:.3g})")
+  if "success_mean" in recorded:
+    p, p_new = recorded["success_mean"], fresh["success_mean"]
+    tol = z * np.sqrt(p * (1 - p) / n) + 1.0 / n
+    if abs(p_new - p) > tol:
+      out.append(f"success {p_new:.3f} vs recorded {p:.3f} (tolerance {tol:.3f})")
+  return out
 
 
 def table() -> str:
