@@ -1,0 +1,47 @@
+"""Why the PM's PegInsert HL fails zero-shot on the 3Link insert LL (RESULTS.md, PegInsert): the angle
+of the peg from vertical where it comes closest to the slot, per LL seed, over the zoo policies.
+
+The slot is 0.014 m wide (|x| < 0.007 between the capsule ends at y = -0.18) and the peg 0.01 m thick,
+so it fits only within about 24 degrees of vertical (0.01 / cos a < 0.014 - clearance)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import hdt
+from hdt.transfer.evaluate import _env_for
+
+
+def deepest(high: str, low: str, episodes: int = 16):
+  p = hdt.compose(high=high, low=low)
+  rows = []
+  for i in range(p.num_seeds):
+    at = lambda t: jax.tree.map(lambda x: x[i], t)
+    env = _env_for(p, None, "auto", at(p.low_params), low_obs_norm=at(p.low_obs_norm))
+    act, params = p.card.policy_fn(at(p.obs_norm)), at(p.params)
+
+    def episode(key):
+      def step(s, _):
+        s = env.step(s, act(params, s.obs))
+        return s, (s.obs_hi, s.metrics["success"], s.done)
+      _, (hi, succ, done) = jax.lax.scan(step, env.reset(key), None, length=env.horizon)
+      return hi, succ, done
+
+    hi, succ, done = jax.jit(jax.vmap(episode))(jax.random.split(jax.random.PRNGKey(1), episodes))
+    hi, succ, done = map(np.asarray, (hi, succ, done))
+    alive = np.cumsum(done, 1) == 0  # before the episode's end (its last state is the next reset's)
+    y = np.where(alive, hi[..., 1], np.inf)
+    j = np.argmin(y, 1)
+    at_min = hi[np.arange(episodes), j]
+    d = at_min[:, :2] - at_min[:, 2:4]  # peg tip minus fingertip
+    angle = np.degrees(np.abs(np.arctan2(d[:, 0], -d[:, 1])))  # 0 = pointing straight down (-y)
+    rows.append((i, float(np.max(succ * (np.cumsum(done, 1) <= 1), 1).mean()), float(np.median(angle)),
+                 float(np.median(at_min[:, 0])), float(np.median(at_min[:, 1]))))
+  return rows
+
+
+if __name__ == "__main__":
+  for low in ("zoo:arm_point/low_insert", "zoo:arm3/low_insert"):
+    for i, succ, ang, x, y in deepest("zoo:arm_point/insert", low):
+      print(f"PM insert HL over {low} seed {i}: success {succ:.2f}, at the peg's deepest point "
+            f"(median over episodes) angle from vertical {ang:.0f} deg, peg tip ({x:+.3f}, {y:+.3f})")
