@@ -4,12 +4,19 @@ of the peg from vertical where it comes closest to the slot, per LL seed, over t
 The slot is 0.014 m wide (|x| < 0.007 between the capsule ends at y = -0.18) and the peg 0.01 m thick,
 so it fits only within about 24 degrees of vertical (0.01 / cos a < 0.014 - clearance)."""
 
+import sys
+from pathlib import Path
+
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 import hdt
+from hdt import envs
 from hdt.transfer.evaluate import _env_for
+from hdt.transfer.hierarchy import HighLevelEnv
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import scripted  # noqa: E402  (the scripted controllers of tests/test_fidelity.py)
 
 
 def deepest(high: str, low: str, episodes: int = 16):
@@ -40,8 +47,22 @@ def deepest(high: str, low: str, episodes: int = 16):
   return rows
 
 
+def scripted_3link(starts: int = 4) -> dict[str, int]:
+  """Insertions by a scripted arm LL straight down the slot's axis, with and without driving the peg to
+  point down (the fingertip 5 cm above the peg tip)."""
+  env = envs.make("arm3", "insert")
+  path = [(0.0, -0.10), (0.0, -0.13), (0.0, -0.16), (0.0, -0.2)]
+  out = {}
+  for label, kw in (("peg tip only", {}), ("peg tip and peg pointing down", {"tool_dir": (0.0, -1.0)})):
+    hl = HighLevelEnv(env, scripted.arm_ll(env, tool=0.05, **kw), None)
+    out[label] = sum(scripted.run_script(hl, scripted.path_script(path, 0.006), key=k)[0] for k in range(starts))
+  return out
+
+
 if __name__ == "__main__":
   for low in ("zoo:arm_point/low_insert", "zoo:arm3/low_insert"):
     for i, succ, ang, x, y in deepest("zoo:arm_point/insert", low):
       print(f"PM insert HL over {low} seed {i}: success {succ:.2f}, at the peg's deepest point "
             f"(median over episodes) angle from vertical {ang:.0f} deg, peg tip ({x:+.3f}, {y:+.3f})")
+  for label, n in scripted_3link().items():
+    print(f"scripted 3Link LL ({label}) down the slot's axis: inserted from {n} of 4 starts")

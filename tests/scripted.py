@@ -17,10 +17,13 @@ def point_ll(kp: float, kd: float):
   return policy
 
 
-def arm_ll(env, kp: float = 20.0, kd: float = 2.0, damping: float = 1e-3, tool: float = 0.0):
+def arm_ll(env, kp: float = 20.0, kd: float = 2.0, damping: float = 1e-3, tool: float = 0.0,
+           tool_dir=None):
   """Damped least-squares PD for a planar chain: joint targets J^T (J J^T + damping)^-1 (g - p), p the
   point ``tool`` m beyond the fingertip along the last link (the peg tip: 0.05);
-  obs = cos(n) ++ sin(n) ++ qvel(n) ++ ... ++ (g - p)."""
+  obs = cos(n) ++ sin(n) ++ qvel(n) ++ ... ++ (g - p). With ``tool_dir`` (a unit xy vector) the
+  fingertip is also driven to g - tool * tool_dir, so that the tool points along tool_dir (the insert
+  LL's obs ends with g - fingertip, g - peg tip)."""
   m = env.mj_model
   n = env.action_size
   names = [m.body(i).name for i in range(m.nbody)]
@@ -28,13 +31,19 @@ def arm_ll(env, kp: float = 20.0, kd: float = 2.0, damping: float = 1e-3, tool: 
   lengths = np.array([np.linalg.norm(m.body_pos[j]) for j in chain[1:]]
                      + [np.linalg.norm(m.body_pos[names.index("agent/fingertip")]) + tool], np.float32)
 
+  def jacobian(lengths, phi):
+    dx, dy = -lengths * jnp.sin(phi), lengths * jnp.cos(phi)
+    return jnp.stack([jnp.cumsum(dx[::-1])[::-1], jnp.cumsum(dy[::-1])[::-1]])  # (2, n)
+
   def policy(params, obs):
     th = jnp.arctan2(obs[n:2 * n], obs[:n])
     phi = jnp.cumsum(th)
-    dx = -lengths * jnp.sin(phi)
-    dy = lengths * jnp.cos(phi)
-    jac = jnp.stack([jnp.cumsum(dx[::-1])[::-1], jnp.cumsum(dy[::-1])[::-1]])  # (2, n)
-    dq = jac.T @ jnp.linalg.solve(jac @ jac.T + damping * jnp.eye(2), obs[-2:])
+    jac, err = jacobian(lengths, phi), obs[-2:]
+    if tool_dir is not None:  # and the fingertip to g - tool * tool_dir
+      to_tip = lengths - np.eye(n, dtype=np.float32)[-1] * tool
+      jac = jnp.concatenate([jac, jacobian(to_tip, phi)])
+      err = jnp.concatenate([err, obs[-4:-2] - tool * jnp.asarray(tool_dir, jnp.float32)])
+    dq = jac.T @ jnp.linalg.solve(jac @ jac.T + damping * jnp.eye(jac.shape[0]), err)
     tau = kp * dq - kd * obs[2 * n:3 * n]
     return jnp.clip(tau, -1.0, 1.0)
   return policy
