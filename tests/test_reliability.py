@@ -629,3 +629,13 @@ def test_mujoco_warnings_are_counted_not_printed(capfd):
   out, err = capfd.readouterr()
   assert warned and "unstable" in warned[0] and "WARNING" not in out + err.replace("simulation warning", "")
   assert len(err.strip().splitlines()) == 1 and err.startswith(f"MuJoCo reported {len(warned)} simulation warning")
+
+
+def test_progress_rate_and_eta_count_only_this_process_steps(monkeypatch, capsys):
+  # a run resumed at 900k of 1M steps that took 10 s for its next 10k: 1000/s, ETA 90 s
+  from hdt.transfer import runner
+  clock = iter([0.0, 10.0])
+  monkeypatch.setattr(runner.time, "perf_counter", lambda: next(clock))
+  runner.print_progress(1_000_000, label="low", start=900_000)(910_000, {})
+  line = capsys.readouterr().err
+  assert "910000/1000000 steps 1000/s ETA 90s" in line, line

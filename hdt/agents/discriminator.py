@@ -50,6 +50,8 @@ B_LABEL, A_LABEL = 0.95, 0.05  # the authors' soft labels: agent (B) 0.95, exper
 DATA_MODES = ("offline", "online")
 
 
+WEIGHT = "disc_weight"  # the alignment plug-in's vmappable hyper-parameter (w_init)
+
 @dataclasses.dataclass(frozen=True)
 class DiscConfig:
   """Discriminator hyper-parameters. Mechanisms follow ``discrim_sac.py``; the per-experiment numbers
@@ -204,7 +206,7 @@ class Alignment(NamedTuple):
     ``disc_weight`` is the reward weight w0 (``cfg.w_init``), vmappable over a grid."""
     return Plugin(name="discriminator", init=lambda key, agent: (agent, self.aux_init(key)),
                   update=self.aux_update, reward=self.reward_fn,
-                  transition_extras=self.transition_extras, hyper={"disc_weight": float(self.cfg.w_init)})
+                  transition_extras=self.transition_extras, hyper={WEIGHT: float(self.cfg.w_init)})
 
   @property
   def plugins(self) -> dict:

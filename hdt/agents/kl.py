@@ -26,6 +26,8 @@ Params = Any
 MODES = ("forward", "reverse")
 
 
+WEIGHT = "kl_weight"  # the KL plug-in's vmappable hyper-parameter (beta)
+
 def make_kl_regularizer(
     policy_apply: Callable[[Params, jax.Array], tuple[jax.Array, jax.Array]],
     reference_params: Params,
@@ -104,7 +106,7 @@ def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps:
       regularizer=lambda state, params, obs, obs_norm=None, kl_weight=None: term(
           params, state[KL_REFERENCE], obs, obs_norm, state.get(KL_REFERENCE_OBS_NORM)),
       schedule=lambda env_steps, kl_weight: kl_weight * anneal(env_steps),
-      hyper={"kl_weight": float(beta)},
+      hyper={WEIGHT: float(beta)},
   )
 
 

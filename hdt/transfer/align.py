@@ -82,9 +82,9 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
 
 def _point_meta(meta: dict, hyper: dict) -> dict:
   """The meta of a grid point over the discriminator's ``disc_weight`` (its w0, ``w_init``)."""
-  if "disc_weight" not in hyper:
+  if disc_lib.WEIGHT not in hyper:
     return meta
-  return dict(meta, discriminator=dict(meta["discriminator"], w_init=hyper["disc_weight"]))
+  return dict(meta, discriminator=dict(meta["discriminator"], w_init=hyper[disc_lib.WEIGHT]))
 
 
 def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):

@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hdt.agents import train as sac_train
-from hdt.agents.kl import MODES, kl_plugin
+from hdt.agents.kl import MODES, WEIGHT, kl_plugin
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
@@ -228,5 +228,5 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
   # a grid over the KL plug-in's kl_weight (hdt.transfer.pipeline.sweep) records each point's beta
-  point_meta = lambda meta, h: dict(meta, **({"kl": h["kl_weight"]} if "kl_weight" in h else {}))
+  point_meta = lambda meta, h: dict(meta, **({"kl": h[WEIGHT]} if WEIGHT in h else {}))
   return Stage(env, config, meta, label, plugins=tuple(plugins), save_extra=sac_extras, point_meta=point_meta)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hdt.agents import discriminator, kl
 from hdt.agents.sac import SWEEPABLE, SACConfig
 from hdt.envs import make
 from hdt.envs.tasks import TASKS
@@ -203,8 +204,8 @@ def sweep(level: str, runs: list[tuple], seeds=1, *, backend="auto", quiet=False
     cfgs = [runs[i][0] for i in members]
     varied = [k for k in SWEEPABLE if len({getattr(c, k) for c in cfgs}) > 1]
     kw = dict(stage)
-    if level == "finetune" and "kl_weight" in names:  # the KL plug-in exists only for kl > 0
-      kw["kl"] = max(runs[i][2]["kl_weight"] for i in members) or 1.0
+    if level == "finetune" and kl.WEIGHT in names:  # the KL plug-in exists only for kl > 0
+      kw["kl"] = max(runs[i][2][kl.WEIGHT] for i in members) or 1.0
     st = setup(config=cfgs[0], backend=backend, **kw)
     points = [({k: getattr(runs[i][0], k) for k in varied} | runs[i][2], runs[i][1]) for i in members]
     if len(points) > 1:
@@ -214,18 +215,17 @@ def sweep(level: str, runs: list[tuple], seeds=1, *, backend="auto", quiet=False
   return results
 
 
-WEIGHTS = {"finetune": ("kl_weight",), "align": ("disc_weight",)}  # the plug-in weights sweep can vary
+WEIGHTS = {"finetune": (kl.WEIGHT,), "align": (discriminator.WEIGHT,)}  # the plug-in weights sweep can vary
 
 
 def check_weights(level: str, weights: list[dict], stage: dict) -> None:
   """Refuses (one line) weights the level has no plug-in for, and values its stage would refuse."""
-  from hdt.agents.discriminator import DiscConfig
   from hdt.transfer.finetune import check_kl  # (finetune imports this module)
   for w in weights:
     unknown = set(w) - set(WEIGHTS.get(level, ()))
     if unknown:
       raise ValueError(f"sweep {level}: {sorted(unknown)} cannot be varied; vmappable: "
                        f"{', '.join(SWEEPABLE + WEIGHTS.get(level, ()))}")
-    check_kl(w.get("kl_weight", 0.0), "kl_weight")
-    if "disc_weight" in w:
-      dataclasses.replace(stage.get("disc", DiscConfig()), w_init=w["disc_weight"])  # checks [0, 1]
+    check_kl(w.get(kl.WEIGHT, 0.0), kl.WEIGHT)
+    if discriminator.WEIGHT in w:
+      dataclasses.replace(stage.get("disc", discriminator.DiscConfig()), w_init=w[discriminator.WEIGHT])  # checks [0, 1]

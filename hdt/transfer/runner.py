@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import functools
 import json
 import os
 import sys
@@ -39,15 +40,16 @@ class RunResult:
 
 
 
-def print_progress(total: int, quiet: bool = False, label: str = "") -> Callable[[int, dict], None]:
-  """A one-line progress report per chunk: steps, steps/s, ETA and the latest evaluation."""
+def print_progress(total: int, quiet: bool = False, label: str = "", start: int = 0) -> Callable[[int, dict], None]:
+  """A one-line progress report per chunk: steps, steps/s, ETA and the latest evaluation. ``start``:
+  the env steps a resumed run had already taken (not counted in its rate)."""
   t0 = time.perf_counter()
 
   def progress(step, metrics):
     if quiet:
       return
     dt = time.perf_counter() - t0
-    rate = step / max(dt, 1e-9)
+    rate = (step - start) / max(dt, 1e-9)
     evals = {k[5:]: float(np.mean(v)) for k, v in metrics.items()
              if k in ("eval/return", "eval/success_max", "eval/goal_dist")}
     ev = " ".join(f"{k}={v:.3g}" for k, v in evals.items())
@@ -170,7 +172,9 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
               ckpt.save_state(run_dir, part(ts, p), part(hist, p), dict(infos[p], env_steps=step),
                               None if best is None else part(best, p))
 
-    progress = (options.progress or print_progress)(config.total_env_steps, options.quiet, stage.label)
+    start = 0 if ts is None else int(np.max(jax.device_get(ts.env_steps)))
+    progress = (options.progress or functools.partial(print_progress, start=start))(
+        config.total_env_steps, options.quiet, stage.label)
     try:
       with counted_mujoco_warnings(options.quiet) as warned:
         res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
