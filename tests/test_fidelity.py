@@ -181,6 +181,25 @@ def test_waypoint_start_noise_is_the_open_arena_classes(agent, qpos, qvel, norma
       assert np.abs(v).max() <= vel + 1e-6 and np.abs(v).max() > 0.95 * vel, (task, np.abs(v).max())
 
 
+@pytest.mark.parametrize("agent,task,half", [("ant", "waypoint", 0.13), ("ant", "maze", 0.1), ("quadruped", "reach", 0.1)])
+def test_legged_starts_perturb_the_free_joint_too(agent, task, half):
+  # ant.py Ant.reset_func / maze.py AntMaze.reset_func / quadruped.py: uniform noise on every qpos entry,
+  # the free joint's position and quaternion included (MuJoCo renormalises the quaternion).
+  env = E.make(agent, task)
+  s = _starts(env, n=512)
+  q = np.asarray(s.physics.qpos)[:, env._qpos_idx]
+  q0 = env._qpos0[env._qpos_idx]
+  dpos = q[:, :3] - q0[:3]
+  assert np.abs(dpos).max() <= half + 1e-5 and np.abs(dpos).min(0).max() < 0.05 * half
+  assert np.all(np.abs(dpos).max(0) > 0.9 * half), np.abs(dpos).max(0)
+  np.testing.assert_allclose(np.linalg.norm(q[:, 3:7], axis=1), 1.0, atol=1e-5)
+  tilt = np.degrees(2 * np.arccos(np.clip(np.abs(q[:, 3]), 0, 1)))
+  assert 3.0 < np.median(tilt) < 20.0, np.median(tilt)
+  off = E.make(agent, task, free_joint_noise=False)
+  q = np.asarray(_starts(off, n=64).physics.qpos)[:, off._qpos_idx]
+  np.testing.assert_allclose(q[:, :7], np.tile(q0[:7], (64, 1)), atol=1e-6)
+
+
 # -- PegInsert's own LL (insert.py Insert*Low, InsertPMLow) -------------------------------------------
 
 def _insert_reach(agent, policy, n=128, seed=0):

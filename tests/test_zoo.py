@@ -51,6 +51,11 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   ev.compose("zoo:t/high", "zoo:t/low")
   for name in ("t/low", "t/high"):
     assert not zoo.within_noise(*zoo.recheck(name))
+  # a re-evaluation (after a deliberate env change) keeps the numbers it replaces
+  before = json.loads((tmp_path / "zoo/t/high/zoo.json").read_text())
+  after = zoo.reevaluate("t/high", "test", episodes=4)
+  assert after["reevaluated"][0]["previous"]["evaluation"] == before["evaluation"] and after["command"] == "test"
+  assert not zoo.within_noise(*zoo.recheck("t/high"))
   # a broken LL checkpoint (its first layer shuffled) is outside noise; its changed files are refused
   d = tmp_path / "zoo/t/low/seed_0/params"
   params = ocp.PyTreeCheckpointer().restore(d.resolve())

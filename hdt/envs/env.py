@@ -37,13 +37,14 @@ class AgentTaskEnv:
 
     # Agent degrees of freedom and sensors, found by the prefix the composition gave them.
     joints = [j for j in range(m.njnt) if m.joint(j).name.startswith(AGENT_PREFIX)]
-    qpos_idx, qvel_idx, movable = [], [], []
+    qpos_idx, qvel_idx, movable, free = [], [], [], []
     for j in joints:
       nq = {0: 7, 1: 4, 2: 1, 3: 1}[int(m.jnt_type[j])]
       nv = {0: 6, 1: 3, 2: 1, 3: 1}[int(m.jnt_type[j])]
       qpos_idx += range(m.jnt_qposadr[j], m.jnt_qposadr[j] + nq)
       qvel_idx += range(m.jnt_dofadr[j], m.jnt_dofadr[j] + nv)
-      movable += [m.jnt_qposadr[j]] if m.jnt_type[j] in (2, 3) else []  # no noise on free/ball joints
+      movable += [m.jnt_qposadr[j]] if m.jnt_type[j] in (2, 3) else []
+      free += [int(m.jnt_qposadr[j])] if m.jnt_type[j] == 0 else []
     self._qpos_idx, self._qvel_idx = np.array(qpos_idx), np.array(qvel_idx)
     # Start inside the joint limits (the Gym ant's ankles rest outside theirs at qpos0, which makes
     # the first landing violent and chaotic).
@@ -59,6 +60,10 @@ class AgentTaskEnv:
     qpos_noise, qvel_noise = task.start_noise(agent)
     self._start_half = np.zeros(m.nq, np.float32)
     self._start_half[movable] = qpos_noise
+    self._quats = np.array([a + 3 for a in free], np.int32)  # each free joint's quaternion (w, x, y, z)
+    if agent.free_joint_noise:
+      for a in free:
+        self._start_half[a:a + 7] = qpos_noise
     self._start_offset = np.zeros(m.nq, np.float32)
     if low and agent.ll_qpos_noise:
       if len(agent.ll_qpos_noise) != len(movable):
@@ -123,6 +128,8 @@ class AgentTaskEnv:
     half = self._start_half
     qpos = self._qpos0 + self._start_offset + half * jax.random.uniform(k_pos, half.shape, minval=-1.0, maxval=1.0)
     qpos = jnp.clip(qpos, self._qpos_lo, self._qpos_hi)
+    for a in self._quats:
+      qpos = qpos.at[a:a + 4].set(qpos[a:a + 4] / jnp.linalg.norm(qpos[a:a + 4]))
     if self.agent.legged:
       qvel = self._qvel_noise * jax.random.normal(k_vel, self._qvel_noise.shape)
     else:

@@ -31,6 +31,9 @@ class AgentSpec:
   # (qpos half-width, qvel scale) of starts in the open arena (Waypoint, and the nav LL, which the
   # authors train on the Waypoint class: PointMassLargeMJ / Ant.reset_func); empty: the two above.
   open_noise: tuple[float, ...] = ()
+  # The start's qpos noise also on free joints (x, y, z and the quaternion, renormalised), as the
+  # authors' reset_funcs add it to every qpos entry (ant.py Ant.reset_func, maze.py AntMaze.reset_func).
+  free_joint_noise: bool = True
   # LL (reach) starts: per agent-qpos uniform half-widths (empty: the task's start_noise) around qpos0 + offset.
   # The authors' arms start their LL episodes at random joint angles, their point mass at (0, 0).
   ll_qpos_noise: tuple[float, ...] = ()

@@ -151,6 +151,23 @@ def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check
   tmp.rename(dest)
 
 
+def reevaluate(name: str, reason: str, episodes: int = 100) -> dict:
+  """Re-runs an entry's evaluation and check after a deliberate change of its env (``reason``), keeping
+  the previous numbers under ``reevaluated``. Returns the new zoo.json."""
+  path = ZOO_DIR / name / "zoo.json"
+  info = json.loads(path.read_text())
+  full = _evaluate(PREFIX + name, info["low"], info["task"], episodes, 1234, **info["task_options"])
+  check = _evaluate(PREFIX + name, info["low"], info["task"], CHECK_EPISODES, CHECK_KEY, **info["task_options"])
+  old = {k: info[k] for k in ("evaluation", "check")}
+  info["reevaluated"] = info.get("reevaluated", []) + [dict(date=datetime.date.today().isoformat(), reason=reason,
+                                                            hdt_version=hdt.__version__, previous=old)]
+  info["evaluation"], info["check"] = full, dict(episodes=CHECK_EPISODES, key=CHECK_KEY, result=check)
+  tmp = path.with_name(".zoo.json.tmp")
+  tmp.write_text(json.dumps(info, indent=1))
+  tmp.replace(path)
+  return info
+
+
 def recheck(name: str) -> tuple[dict, dict]:
   """(recorded, fresh) results of the entry's deterministic check evaluation."""
   info = json.loads((ZOO_DIR / name / "zoo.json").read_text())
