@@ -178,7 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
                       formatter_class=fmt)
   al.add_argument("--agent", required=True, help=AGENT_HELP)
   al.add_argument("--imitate", required=True, type=Path, help="LL run directory of agent A")
-  al.add_argument("--n-offline", type=int, default=20_000, help="A transitions collected offline")
+  al.add_argument("--n-offline", type=int, default=20_000, help="A transitions in the fixed set (--disc-data fixed)")
   al.add_argument("--imitate-params", choices=("best", "final"), default="best",
                   help="A's parameters to imitate: its best periodic evaluation's (as the authors; final "
                        "if it has none), or its final ones")
@@ -236,7 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
                   help="finetune: A's parameters the KL ties to (as `hdt finetune`)")
   sw.add_argument("--low-seed", type=int, default=0, help="high, finetune: seed of --low that drives every HL seed")
   _low_params(sw)
-  sw.add_argument("--n-offline", type=int, default=20_000, help="align: A transitions collected offline")
+  sw.add_argument("--n-offline", type=int, default=20_000, help="align: A transitions in the fixed set (--disc-data fixed)")
   sw.add_argument("--imitate-params", choices=("best", "final"), default="best",
                   help="align: A's parameters to imitate (as `hdt align`)")
   _add_dataclass_options(sw, DiscConfig, "disc-", "discriminator (align)", "Algorithm 1's discriminator (SPEC 4).")

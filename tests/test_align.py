@@ -180,14 +180,14 @@ def test_collect_offline_gives_goal_space_taus(point_low):
 def test_align_low_end_to_end_and_meta(point_low, tmp_path):
   cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=100, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  res = align_low("point", imitate=point_low.run_dir, config=cfg, disc=D.DiscConfig(buffer_size=500),
+  res = align_low("point", imitate=point_low.run_dir, config=cfg, disc=D.DiscConfig(buffer_size=500, data="fixed"),
                   seeds=1, out=tmp_path / "aligned", n_offline=256, quiet=True)
   meta = json.loads((tmp_path / "aligned" / "meta.json").read_text())
   assert meta["level"] == "low" and meta["aligned_to"]["agent"] == "point"
   assert meta["aligned_to"]["path"] == str(point_low.run_dir) and meta["discriminator"]["w_init"] == 0.3
   w = res.history["disc/w"]
   assert w.shape == (1, 1) and 0.1 < w[0, 0] < 0.3  # chunk mean of the annealed weight
-  assert meta["discriminator"]["data"] == "offline" and meta["aligned_to"]["n_offline"] == 256
+  assert meta["discriminator"]["data"] == "fixed" and meta["aligned_to"]["n_offline"] == 256
   assert np.all(np.isfinite(res.history["disc/loss"]))
 
   # The discriminator is saved with the LL (inspect / resume the alignment) and reloads exactly.
@@ -216,7 +216,7 @@ def test_align_low_online_runs_and_a_follows_b_goals(point_low, tmp_path, monkey
     return res
 
   monkeypatch.setattr(align_mod, "run_stage", spy)
-  # B's LL episodes last 20 steps (A's 100), so B's new goals drive A's restarts
+  # B's LL episodes last 20 steps (A's 32, the README's --discrim-time-limit), so B's new goals drive A's restarts
   cfg = configs.low_config("point", total_env_steps=200, num_envs=4, steps_per_chunk=50, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
   res = align_low("point", imitate=point_low.run_dir, config=cfg, seeds=1, out=tmp_path / "online",
@@ -246,6 +246,40 @@ def test_align_low_online_runs_and_a_follows_b_goals(point_low, tmp_path, monkey
   np.testing.assert_array_equal(z_a[mid], z_b[mid])
 
 
+def _alongside_state(point_low, tmp_path, data, **disc_kw):
+  """(A's and B's replay rows, env leaves) of a tiny alignment with A alongside B."""
+  import orbax.checkpoint as ocp
+
+  from hdt.transfer import checkpoint as ck
+  cfg = configs.low_config("point", total_env_steps=240, num_envs=4, steps_per_chunk=60, batch_size=16,
+                           buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
+  align_low("point", imitate=point_low.run_dir, config=cfg, seeds=1, out=tmp_path / data, quiet=True,
+            disc=D.DiscConfig(data=data, buffer_size=500, update_every=1, **disc_kw), ll_horizon=50)
+  info = ck.load_state_info(tmp_path / data)
+  arrays = ocp.PyTreeCheckpointer().restore(ck.state_dir(tmp_path / data).resolve() / "arrays")
+  return {name: np.asarray(arrays["state"][f"{i:05d}"])[0] for i, (name, _, _) in enumerate(info["leaves"])}
+
+
+def test_authors_offline_mode_starts_a_on_its_own_goal_then_follows_b(point_low, tmp_path):
+  """DiscriminatorEnv with discrim_online=False (the README's alignment): at B's new goal A resets on a
+  random goal of its own; after A's time limit (here 10 steps) it restarts on B's current z. A's rows
+  carry B's z throughout (DSAC.learn labels both classes with the agent's skill)."""
+  leaves = _alongside_state(point_low, tmp_path, "offline", expert_time_limit=10)
+  buf_b, buf_a = leaves[".aux['buf']"][:240], leaves[".aux['buf_a']"][:240]
+  np.testing.assert_array_equal(buf_a[:, 4:], buf_b[:, 4:])  # B's z on A's rows
+  steps_b = leaves[".env_state.task['steps']"]
+  z_a, z_b = leaves[".aux['a_state'].task['t']['z']"], leaves[".env_state.task['t']['z']"]
+  # 240 steps / 4 envs = 60 steps per env: B's episodes (50) restarted at step 50; A ran 10 steps on its
+  # own goal, then restarted on B's z at its time limit
+  assert np.all(steps_b == 10) and np.array_equal(z_a, z_b)
+  # ... and in the first 10 steps of each of B's episodes, A's goal was its own: A's tau g - s starts at
+  # its own z, not at B's (row 0 of each env: B's episode start)
+  first = buf_a[:4]
+  assert not np.allclose(first[:, :2], first[:, 4:], atol=1e-3)
+  online = _alongside_state(point_low, tmp_path, "online", expert_time_limit=10)
+  np.testing.assert_allclose(online[".aux['buf_a']"][:4, :2], online[".aux['buf_a']"][:4, 4:], atol=1e-5)
+
+
 def test_align_low_rejects_other_goal_space(point_low):
   with pytest.raises(ValueError, match="goal spaces differ"):
     align_low("arm3", imitate=point_low.run_dir, quiet=True)
@@ -270,7 +304,8 @@ def test_alignment_moves_b_taus_towards_a(tmp_path):
   a = train_low("point", small(3000), seeds=1, out=tmp_path / "a", quiet=True)
   plain = train_low("point", small(4000), seeds=1, out=tmp_path / "plain", quiet=True, gear_scale=3.0)
   aligned = train_low("point", small(4000), seeds=1, out=tmp_path / "al", quiet=True, gear_scale=3.0,
-                      imitate=a.run_dir, disc=D.DiscConfig(w_init=0.5, w_decay=False, lr=1e-3, buffer_size=5000))
+                      imitate=a.run_dir, disc=D.DiscConfig(w_init=0.5, w_decay=False, lr=1e-3, buffer_size=5000,
+                                                           data="fixed"))
   taus = {n: collect_offline(r.run_dir, 1024, jax.random.PRNGKey(5), num_envs=64, include_z=False) / 4.0
           for n, r in [("a", a), ("plain", plain), ("aligned", aligned)]}
   e_plain, e_aligned = (_energy_distance(taus[n], taus["a"]) for n in ("plain", "aligned"))
@@ -292,7 +327,7 @@ def test_align_imitates_a_best_by_default(point_low, tmp_path, monkeypatch):
     got = {}
     monkeypatch.setattr(al, "collect_offline", lambda *a_, **k: got.update(tau=real_collect(*a_, **k)) or got["tau"])
     monkeypatch.setattr(al, "run_stage", lambda stage, options: got.update(meta=stage.meta))
-    align_low("point", imitate=a, config=cfg, disc=D.DiscConfig(buffer_size=500), seeds=1, n_offline=64,
+    align_low("point", imitate=a, config=cfg, disc=D.DiscConfig(buffer_size=500, data="fixed"), seeds=1, n_offline=64,
               quiet=True, **kw)
     np.testing.assert_array_equal(got["tau"], collect_offline(a, 64, key, num_envs=64, which=want))
     rec = got["meta"]["aligned_to"]

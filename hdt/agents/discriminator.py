@@ -21,11 +21,14 @@ Follows ``bot_transfer/algs/discrim_sac.py`` (class ``DSAC``) and ``bot_transfer
   (one A sample stored per B sample), every ``update_every`` env steps while ``step < stop * T``,
   at ``lr * max(0, 1 - step / (stop * T))``.
 
-A's data: ``"offline"`` (default: the paper's main results and the README's
-``--discrim-online false``) is a fixed set of A's taus on uniformly drawn goals, each with A's own
-z; ``"online"`` runs A's frozen deterministic LL in A's reach env alongside every B env, and A
-restarts on B's relative goal z whenever B's episode gets a new goal (``DiscriminatorEnv.reset``)
-or A's own episode ends (``DiscriminatorEnv.step``).
+A's data. In both of the authors' modes A's frozen deterministic LL runs in A's reach env alongside
+every B env, and A's rows carry B's relative goal z (``DiscriminatorEnv``, ``DSAC.learn``):
+``"offline"`` (default: the paper's main results, the README's ``--discrim-online false``) starts A,
+at each of B's new goals, on a random goal of its own (``reset(low=True)`` samples a skill), and
+``"online"`` on B's z (``reset`` then ``set_skill``). In both, when A's own episode ends (its done, or
+``expert_time_limit`` steps: the README's ``--discrim-time-limit 32``) A restarts from a fresh start
+on B's current z (``DiscriminatorEnv.step``). ``"fixed"`` is the paper text's description instead: a
+fixed set of A's taus on uniformly drawn goals, each with A's own z.
 
 The plug-ins (:func:`make_alignment`) follow ``hdt.agents.train.make_train``'s contract and are pure
 and vmappable over seeds.
@@ -47,7 +50,7 @@ from hdt.agents.plugins import Plugin
 TAU_SIZE = 4  # (g - s_t, g - s_{t+1})
 Z_SIZE = 2
 B_LABEL, A_LABEL = 0.95, 0.05  # the authors' soft labels: agent (B) 0.95, expert (A) 0.05
-DATA_MODES = ("offline", "online")
+DATA_MODES = ("offline", "online", "fixed")
 
 
 WEIGHT = "disc_weight"  # the alignment plug-in's vmappable hyper-parameter (w_init)
@@ -70,7 +73,8 @@ class DiscConfig:
   stop: float = 0.5  # updates only while step < stop T, lr linearly to 0 at stop T (discrim_stop)
   buffer_size: int = 125_000  # per class (the authors' 250k buffer holds both classes)
   include_z: bool = True  # z in the input (discrim_include_skill)
-  data: str = "offline"  # A's data: "offline" (fixed set) or "online" (A runs alongside B)
+  data: str = "offline"  # A's data: "offline" / "online" (A alongside B; see the module) or "fixed" (a set)
+  expert_time_limit: int = 32  # A's episode length alongside B (README --discrim-time-limit); 0: A's LL horizon
   scale_inputs: bool = False  # True: divide inputs by A's delta_max (the authors feed raw units)
 
   def __post_init__(self):
@@ -90,6 +94,8 @@ class DiscConfig:
     bad += [f"{k}={getattr(self, k)!r} must be in [0, 1]" for k in ("w_init", "w_min")
             if not 0.0 <= getattr(self, k) <= 1.0]
     bad += [f"start={self.start!r} must be >= 0"] if not self.start >= 0 else []
+    bad += [f"expert_time_limit={self.expert_time_limit!r} must be >= 0 (0: A's LL horizon)"] \
+        if not self.expert_time_limit >= 0 else []
     bad += [f"data={self.data!r} must be one of {DATA_MODES}"] if self.data not in DATA_MODES else []
     if bad:
       raise ValueError(f"invalid DiscConfig: {'; '.join(bad)}; the defaults are the authors' values")
@@ -219,18 +225,18 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
                    tau_scale: float = 1.0, expert: OnlineExpert | None = None) -> Alignment:
   """The make_train plug-ins aligning B's LL to A.
 
-  tau_a: A's offline inputs, shape (n, cfg.input_size) (``data="offline"``).
-  expert: A's LL and reach env (``data="online"``); B's env must be a reach env too (its task
-    state gives z).
+  tau_a: A's fixed inputs, shape (n, cfg.input_size) (``data="fixed"``).
+  expert: A's LL and reach env (``data="offline"`` or ``"online"``), its horizon A's time limit; B's
+    env must be a reach env too (its task state gives z).
   tau_scale: inputs are divided by it before the MLP (1 = the authors' raw units).
   The aux state: ``params``, ``opt_state``, ``buf`` (B's inputs), ``ptr``, ``size``, ``env_steps``,
   and online ``buf_a`` (A's inputs, written in lockstep with ``buf``) and ``a_state`` (A's envs).
   """
-  online = cfg.data == "online"
+  online = cfg.data != "fixed"  # A runs alongside B
   n_in = cfg.input_size
   if online:
     if expert is None:
-      raise ValueError("DiscConfig(data='online') needs expert=OnlineExpert(A's reach env, policy_fn, params)")
+      raise ValueError(f"DiscConfig(data={cfg.data!r}) needs expert=OnlineExpert(A's reach env, policy_fn, params)")
   else:
     tau_a = jnp.asarray(tau_a, jnp.float32)
     if tau_a.ndim != 2 or tau_a.shape[1] != n_in or tau_a.shape[0] == 0:
@@ -260,12 +266,15 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     return aux
 
   def step_expert(a_state, extras, key):
-    """A restarts on B's z where B's episode starts, takes one deterministic step, and restarts on
-    B's current z (fresh physics) where its own episode ended (``DiscriminatorEnv.step``)."""
+    """A restarts where B's episode starts (on B's z online, on a random goal of its own offline),
+    takes one deterministic step, and restarts on B's current z (fresh physics) where its own episode
+    ended (``DiscriminatorEnv.reset`` / ``step``). Its input row carries B's z either way."""
     env, z, first = expert.env, extras["z"], extras["first"] > 0
     coin = jax.vmap(lambda k: env.task.physics_reset(k, env.agent, jnp.bool_(False), jnp.bool_(True)))(
         jax.random.split(key, z.shape[0]))
-    s = jax.vmap(lambda s, z, f, c: restart_on_z(env, s, z, f, c))(a_state, z, first, coin)
+    d = env.agent.delta_max
+    z0 = z if cfg.data == "online" else jax.random.uniform(jax.random.fold_in(key, 1), z.shape, z.dtype, -d, d)
+    s = jax.vmap(lambda s, z, f, c: restart_on_z(env, s, z, f, c))(a_state, z0, first, coin)
     nxt = jax.vmap(env.step)(s, expert.policy_fn(expert.params, s.obs))
     x = disc_input(s.obs, nxt.next_obs, z if cfg.include_z else None)
     done = nxt.done > 0

@@ -31,10 +31,11 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
               imitate_params: str = IMITATE_PARAMS, **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` aligned to the LL saved in ``imitate`` (agent A).
 
-  A's data (``disc.data``): "offline" (default, as the paper's main results and the authors' README,
-  ``--discrim-online false``): ``n_offline`` transitions of A's deterministic LL on uniformly sampled
-  goals (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by all seeds; "online": A's
-  LL runs in A's reach env alongside each of B's envs on B's sub-goals (``DiscriminatorEnv``).
+  A's data (``disc.data``, :mod:`hdt.agents.discriminator`): "offline" (default, as the paper's main
+  results and the authors' README, ``--discrim-online false``) and "online": A's LL runs in A's reach
+  env (episodes of ``disc.expert_time_limit`` steps) alongside each of B's envs (``DiscriminatorEnv``);
+  "fixed": ``n_offline`` transitions of A's deterministic LL on uniformly sampled goals
+  (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by all seeds.
   Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
   ``discriminator`` (the DiscConfig). backend: the physics backend; seeds, out, quiet, resume, save_every, overwrite: see
   :class:`hdt.transfer.runner.RunOptions`.
@@ -59,8 +60,9 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
   card_a = PolicyCard.from_json(meta_a, imitate)
   card_a.compatible_with(card, "align")
   tau_scale = float(card_a.delta_max or 1.0) if disc.scale_inputs else 1.0
-  if disc.data == "online":
-    env_a = card_a.make_env("reach", backend)
+  if disc.data != "fixed":
+    limit = {"ll_horizon": disc.expert_time_limit} if disc.expert_time_limit else {}
+    env_a = card_a.make_env("reach", backend, **limit)
     expert = disc_lib.OnlineExpert(env_a, fn_a, params_a["policy"])
     al = disc_lib.make_alignment(disc, None, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale, expert=expert)
@@ -71,7 +73,7 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
                                  tau_scale=tau_scale)
   meta = dict(card.to_json(), aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
                                     params=meta_a["params"], params_env_steps=meta_a["params_env_steps"],
-                                    n_offline=int(n_offline) if disc.data == "offline" else 0,
+                                    n_offline=int(n_offline) if disc.data == "fixed" else 0,
                                     offline_seed=offline_seed, tau_scale=tau_scale,
                                     sha256=ckpt.content_hash(imitate, imitate_seed)),
               discriminator=dataclasses.asdict(disc))
