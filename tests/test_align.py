@@ -45,7 +45,7 @@ def test_discriminator_separates_distributions():
   rng = np.random.default_rng(0)
   tau_a = _taus(rng, 4096, 0.05)  # A: slow
   tau_b = _taus(rng, 4096, 2.0)  # B: fast
-  cfg = D.DiscConfig(lr=3e-3, stop=1.0, update_every=1)
+  cfg = D.DiscConfig(lr=3e-3, stop=1.0, update_every=1, data="fixed")
   al = D.make_alignment(cfg, tau_a, total_env_steps=400, num_envs=1)
   aux = al.aux_init(jax.random.PRNGKey(0))
   buf = jnp.asarray(tau_b)
@@ -81,7 +81,7 @@ def test_reward_matches_authors_formula():
 
 def test_reward_fn_uses_env_step_counter():
   """The plug-in's reward_fn (what the SAC update calls on sampled batches) matches the reference."""
-  cfg = D.DiscConfig(w_init=0.4)
+  cfg = D.DiscConfig(w_init=0.4, data="fixed")
   rng = np.random.default_rng(3)
   al = D.make_alignment(cfg, _taus(rng, 64, 0.1), total_env_steps=1000, num_envs=4)
   aux = al.aux_init(jax.random.PRNGKey(0))
@@ -115,7 +115,7 @@ def test_discriminator_input_contains_z():
   """x = (g - s_t, g - s_{t+1}, z), z taken from the transition's extras (the episode's sub-goal)."""
   obs, nxt, z = jnp.arange(5.0)[None], 10 + jnp.arange(5.0)[None], jnp.array([[7.0, -7.0]])
   np.testing.assert_array_equal(D.disc_input(obs, nxt, z), [[3, 4, 13, 14, 7, -7]])
-  cfg = D.DiscConfig()
+  cfg = D.DiscConfig(data="fixed")
   assert cfg.include_z and cfg.input_size == 6
   al = D.make_alignment(cfg, _taus(np.random.default_rng(1), 32, 0.1), total_env_steps=64, num_envs=1)
   assert al.transition_extras is D.z_extras and "transition_extras" in al.plugins
@@ -133,7 +133,7 @@ def test_discriminator_input_contains_z():
 def test_aux_update_buffer_and_update_cadence_vmapped():
   """num_envs=4 and update_every=8: one discriminator update every other training step (at env step
   indices 0, 8, ...) while step < stop T, per seed; the circular buffer wraps."""
-  cfg = D.DiscConfig(update_every=8, buffer_size=10, stop=0.5, lr=1e-2, batch_size=4)
+  cfg = D.DiscConfig(update_every=8, buffer_size=10, stop=0.5, lr=1e-2, batch_size=4, data="fixed")
   tau_a = _taus(np.random.default_rng(1), 32, 0.1)
   al = D.make_alignment(cfg, tau_a, total_env_steps=64, num_envs=4)
   seeds = 2

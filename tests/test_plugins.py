@@ -23,7 +23,7 @@ CFG = SACConfig(hidden_sizes=(16, 16), batch_size=16, buffer_size=500, num_envs=
 
 def _disc():
   return disc_lib.make_alignment(
-      DiscConfig(batch_size=8, hidden_sizes=(8,), buffer_size=256, include_z=False),  # toy env: no z
+      DiscConfig(batch_size=8, hidden_sizes=(8,), buffer_size=256, include_z=False, data="fixed"),  # toy env: no z
       np.random.default_rng(0).normal(size=(256, disc_lib.TAU_SIZE)).astype(np.float32),
       CFG.total_env_steps, CFG.num_envs)
 

@@ -37,7 +37,7 @@ META = dict(level="low", agent="toy", task="reach")
 HALF = CFG.total_env_steps // 2
 # The resumed runs carry plug-in state too: a discriminator (hdt.transfer.align's) against random taus.
 _ALIGN = disc_lib.make_alignment(
-    DiscConfig(batch_size=8, hidden_sizes=(8,), buffer_size=256, include_z=False),  # toy env: no z
+    DiscConfig(batch_size=8, hidden_sizes=(8,), buffer_size=256, include_z=False, data="fixed"),  # toy env: no z
     np.random.default_rng(0).normal(size=(256, disc_lib.TAU_SIZE)).astype(np.float32),
     CFG.total_env_steps, CFG.num_envs)
 ALIGN = (_ALIGN.plugin,)
