@@ -3,7 +3,8 @@ directory is accepted (``hdt eval --high zoo:arm_point/push1 --low zoo:arm_point
 
 An entry is a policy-only copy of a run directory (``meta.json``, ``config.json``, ``seed_*/``; no
 resumable ``state/``) plus ``zoo.json``: the command that trained it, its budget, its evaluation numbers
-and a small deterministic re-evaluation (``check``) that tests replay exactly. An LL entry keeps only its
+and a small deterministic re-evaluation (``check``) that tests replay within noise (:func:`within_noise`:
+float differences between CPUs can flip a contact-rich episode). An LL entry keeps only its
 policies (final and best) and their observation statistics: nothing loads an LL's critics. An HL entry
 keeps its whole final SAC, which KL finetuning starts from (the authors' finetune_high_level_kl.py).
 """
@@ -65,6 +66,13 @@ def _plain(x):
   return x.tolist() if hasattr(x, "tolist") else x
 
 
+def _numbers(entry: str, low: str | None, task: str, episodes: int, task_kw: dict) -> tuple[dict, dict]:
+  """(evaluation over ``episodes`` per seed, the check: its episodes, key and result) of zoo:``entry``."""
+  full = _evaluate(PREFIX + entry, low, task, episodes, 1234, **task_kw)
+  check = _evaluate(PREFIX + entry, low, task, CHECK_EPISODES, CHECK_KEY, **task_kw)
+  return full, dict(episodes=CHECK_EPISODES, key=CHECK_KEY, result=check)
+
+
 def export(run: str | Path, name: str, command: str, low: str | None = None, task: str | None = None,
            episodes: int = 100, overwrite: bool = False, **task_kw) -> Path:
   """Copies the policy of ``run`` into ``zoo/NAME`` and records its numbers. An HL needs ``low`` (a zoo
@@ -90,8 +98,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   tmp_name = str(tmp.relative_to(ZOO_DIR))
   (tmp / "zoo.json").write_text("{}")  # so that zoo:<tmp> resolves during the evaluations below
   try:
-    full = _evaluate(PREFIX + tmp_name, low, task, episodes, 1234, **task_kw)
-    check = _evaluate(PREFIX + tmp_name, low, task, CHECK_EPISODES, CHECK_KEY, **task_kw)
+    full, check = _numbers(tmp_name, low, task, episodes, task_kw)
     _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check, slimmed)
   except BaseException:
     shutil.rmtree(tmp, ignore_errors=True)  # nothing half-written is left in zoo/
@@ -139,8 +146,7 @@ def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check
               low=low, command=command,
               budget=dict(total=sac.get("total_env_steps"),
                           unit="HL decisions" if meta["level"] == "high" else "env steps"),
-              seeds=meta.get("seeds"), evaluation=full, check=dict(episodes=CHECK_EPISODES, key=CHECK_KEY,
-                                                                   result=check),
+              seeds=meta.get("seeds"), evaluation=full, check=check,
               hdt_version=hdt.__version__, exported=datetime.date.today().isoformat())
   if slimmed is not None:
     info["slim"] = slimmed
@@ -154,17 +160,14 @@ def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check
 def reevaluate(name: str, reason: str, episodes: int = 100) -> dict:
   """Re-runs an entry's evaluation and check after a deliberate change of its env (``reason``), keeping
   the previous numbers under ``reevaluated``. Returns the new zoo.json."""
+  from hdt.transfer import checkpoint as ckpt
   path = ZOO_DIR / name / "zoo.json"
   info = json.loads(path.read_text())
-  full = _evaluate(PREFIX + name, info["low"], info["task"], episodes, 1234, **info["task_options"])
-  check = _evaluate(PREFIX + name, info["low"], info["task"], CHECK_EPISODES, CHECK_KEY, **info["task_options"])
   old = {k: info[k] for k in ("evaluation", "check")}
   info["reevaluated"] = info.get("reevaluated", []) + [dict(date=datetime.date.today().isoformat(), reason=reason,
                                                             hdt_version=hdt.__version__, previous=old)]
-  info["evaluation"], info["check"] = full, dict(episodes=CHECK_EPISODES, key=CHECK_KEY, result=check)
-  tmp = path.with_name(".zoo.json.tmp")
-  tmp.write_text(json.dumps(info, indent=1))
-  tmp.replace(path)
+  info["evaluation"], info["check"] = _numbers(name, info["low"], info["task"], episodes, info["task_options"])
+  ckpt.write_json_atomic(path, info)
   return info
 
 
