@@ -62,10 +62,19 @@ class _Parser(argparse.ArgumentParser):
 # ------------------------------------------------------------------------------------------------
 # Options generated from the config dataclasses, so --help always lists every field with its default.
 
+def _bool(text: str) -> bool:
+  t = text.strip().lower()
+  if t in ("true", "1", "yes", "on", "false", "0", "no", "off"):
+    return t in ("true", "1", "yes", "on")
+  raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
 def _field_type(f: dataclasses.Field):
   hint = typing.get_type_hints(SACConfig).get(f.name) if f.name in SACConfig.__dataclass_fields__ \
       else typing.get_type_hints(DiscConfig).get(f.name)
   text = str(hint)
+  if text == str(bool):
+    return dict(type=_bool)
   if "tuple" in text:
     return dict(type=int, nargs="+")
   if "float" in text:
@@ -400,7 +409,9 @@ def cmd_finetune(args) -> int:
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
   hm = ckpt.require(ckpt.load_meta(args.high), {"agent": str, "hidden_sizes": list}, args.high)
   lm = load_low(args.low, args.low_seed)[1]
-  cfg = sac_config(args, "high", task=args.task, hidden_sizes=tuple(hm["hidden_sizes"]))
+  # A's network and SAC kind: finetuning starts from A's SAC
+  cfg = sac_config(args, "high", task=args.task, hidden_sizes=tuple(hm["hidden_sizes"]),
+                   value_net=bool(hm.get("sac", {}).get("value_net", False)))
   out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{args.kl:g}")
   res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
@@ -674,9 +685,13 @@ def cmd_quickstart(args) -> int:
 # Rows of the transfer table: (task, label, HL run ("here": the one trained here), LL run, uniform
 # random sub-goals instead of the HL's, paper's number: Table 1's zero-shot and own-HL cells).
 QUICKSTART_TRANSFERS = (
-    ("push1", "PM HL (zoo:arm_point/push1), zero-shot", "zoo:arm_point/push1", "zoo:arm3/low", False, ".17 ± .08"),
-    ("push1", "3Link's own HL (zoo:arm3/push1)", "zoo:arm3/push1", "zoo:arm3/low", False, ".96"),
-    ("push1", "uniform random sub-goals", "zoo:arm3/push1", "zoo:arm3/low", True, "—"),
+    ("push1", "3Link's own HL (zoo:arm3/push1_500k)", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", False,
+     ".96 ± .02"),
+    ("push1", "4Link HL (zoo:arm4/push1_500k), zero-shot", "zoo:arm4/push1_500k", "zoo:arm_point/low", False,
+     ".26 ± .17"),
+    ("push1", "PM HL (zoo:arm_point/push1), zero-shot", "zoo:arm_point/push1", "zoo:arm3/low_paper", False,
+     ".17 ± .08"),
+    ("push1", "uniform random sub-goals", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", True, "—"),
     ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low", False, "483 ± 39"),
     ("waypoint", "uniform random sub-goals", "here", "zoo:ant/low", True, "—"),
 )

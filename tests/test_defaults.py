@@ -107,6 +107,15 @@ def test_ant_ll_budget_is_the_same_in_reproduce_and_train():
   assert C.low_cfg("ant", pr).total_env_steps == _cli_config("low", "cpu", agent="ant").total_env_steps == 100_000
 
 
+def test_paper_preset_runs_the_authors_sb2_sac_and_the_others_twin_q():
+  for level, kw in (("low", dict(agent="arm3")), ("high", dict(task="push1")), ("full", dict(agent="ant", task="maze"))):
+    assert configs.config(level, "paper", **kw).value_net, level
+    assert not configs.config(level, "cpu", **kw).value_net, level
+    assert _cli_config(level, "paper", **kw).value_net
+  args = cli.build_parser().parse_args(["train", "low", "--agent", "point", "--preset", "paper", "--value-net", "false"])
+  assert not cli.sac_config(args, "low", agent="point").value_net
+
+
 def test_cli_presets_are_the_configs_table():
   assert cli.PRESETS == tuple(configs.PRESETS)
   assert "2.5M" in configs.describe_paper_budgets() and "500k push1" in configs.describe_paper_budgets()

@@ -201,6 +201,26 @@ def test_finetune_starts_from_a_whole_sac_without_warmup(pm_runs, monkeypatch):
   assert float(ts.agent.log_alpha[0]) == 0.0
 
 
+def test_finetune_from_an_sb2_hl_starts_from_its_value_net(pm_runs, monkeypatch, tmp_path):
+  """An HL trained with SB2's SAC (value_net, the authors') hands on V and its target V' too; a
+  twin-Q finetune of it is refused in one line that names the option."""
+  root, low, _, high_cfg = pm_runs
+  from hdt.transfer import finetune as ft
+  cfg = configs.replace(high_cfg, total_env_steps=400, steps_per_chunk=50, value_net=True)
+  a_run = train_high("waypoint", low.run_dir, cfg, seeds=1, out=tmp_path / "a_sb2", quiet=True).run_dir
+  a, _ = ckpt.load(a_run, 0)
+  assert set(a["q"]) == {"q", "v"} and set(a["target_q"]) == {"v"}
+  captured = {}
+  monkeypatch.setattr(ft, "run_stage", _capture(captured))
+  finetune_high(a_run, low.run_dir, "waypoint", kl=1.0, seeds=1, quiet=True)  # config from A: SB2's SAC
+  agent = captured["initial_state"].agent
+  assert captured["trainer"].config.value_net
+  assert _leaves_equal(agent.q_params, jax.tree.map(lambda x: x[None], a["q"]))
+  assert _leaves_equal(agent.target_q_params, jax.tree.map(lambda x: x[None], a["target_q"]))
+  with pytest.raises(ckpt.CheckpointError, match="value_net=True .* pass --value-net True"):
+    finetune_high(a_run, low.run_dir, "waypoint", quiet=True, config=configs.replace(cfg, value_net=False))
+
+
 def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypatch):
   root, low, high, high_cfg = pm_runs
   # Every seed's initial policy is A's HL (one A seed, cycled), with a fresh optimiser state.

@@ -48,6 +48,18 @@ def test_sac_learns_to_reach_goals(seed):
   assert int(result.state.agent.update_steps[0]) == 5_000 - 300 + 1
 
 
+def test_sb2_value_net_sac_learns_to_reach_goals():
+  """SB2's SAC (the authors': V with a target V', the actor on Q_1) learns the same toy task."""
+  cfg = dataclasses.replace(CFG, value_net=True)
+  result = run(ENV, cfg, seeds=[0])
+  dist = result.history["eval/goal_dist_final"][0]
+  print(f"value_net: final goal distance untrained {dist[0]:.3f} -> trained {dist[-1]:.3f}")
+  assert dist[-1] * 10.0 <= dist[0], dist
+  agent = result.state.agent
+  assert set(agent.q_params) == {"q", "v"} and set(agent.target_q_params) == {"v"}
+  assert np.all(np.isfinite(result.history["v"]))
+
+
 def test_vmap_over_seeds_matches_separate_runs():
   """run() (jit(vmap) over 4 seeds) == 4 separate unbatched runs, for one chunk."""
   seeds = [0, 1, 2, 3]

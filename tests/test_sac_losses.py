@@ -307,3 +307,78 @@ def test_config_defaults_are_paper_point_mass_values():
   assert c.target_entropy_for(8) == -8.0
   assert SACConfig(hidden_sizes=[32, 32]).hidden_sizes == (32, 32)
   hash(c)
+
+
+# ---------------------------------------------------------------------------------------------
+# stable-baselines 2's SAC (value_net=True), the authors': a numpy transcription of SB2's sac.py
+# (q_backup, v_backup, qf1_pi in the policy loss, a target on V only, one sess.run per update).
+
+V = {"w": np.array([0.4, -0.6], np.float32), "c": np.float32(0.05)}
+V_TARGET = {"w": np.array([0.3, -0.5], np.float32), "c": np.float32(-0.1)}
+STUB_V = nets.SACNetworks(
+    policy_apply=stub_policy_apply,
+    q_apply=lambda p, obs, act, obs_norm=None: stub_q_apply(p["q"], obs, act),
+    v_apply=lambda p, obs, obs_norm=None: obs @ p["v"]["w"] + p["v"]["c"],
+    value_net=True,
+)
+QV, QV_TARGET = {"q": Q, "v": V}, {"v": V_TARGET}
+
+
+def np_v(v, obs):
+  v = np64(v)
+  return obs @ v["w"] + v["c"]
+
+
+def sb2_losses():
+  return make_losses(STUB_V, gamma=GAMMA, reward_scale=REWARD_SCALE, target_entropy=TARGET_ENTROPY)
+
+
+def test_sb2_value_net_losses_match_numpy():
+  critic_loss, actor_loss, _ = sb2_losses()
+  loss, aux = jax.jit(critic_loss)(QV, QV_TARGET, POLICY, LOG_ALPHA, BATCH, EPS)
+  b, alpha = np64(BATCH), np.exp(np.float64(LOG_ALPHA))
+  q_backup = REWARD_SCALE * b.reward + b.discount * GAMMA * np_v(V_TARGET, b.next_obs)
+  q = np_q(Q, b.obs, b.action)
+  a_pi, logp_pi = np_policy(POLICY, b.obs, np.float64(EPS))
+  v_backup = np.min(np_q(Q, b.obs, a_pi), -1) - alpha * logp_pi
+  ref = (0.5 * np.mean((q_backup - q[:, 0]) ** 2) + 0.5 * np.mean((q_backup - q[:, 1]) ** 2)
+         + 0.5 * np.mean((np_v(V, b.obs) - v_backup) ** 2))
+  np.testing.assert_allclose(float(loss), ref, rtol=1e-5)
+  np.testing.assert_allclose(float(aux["target_q"]), q_backup.mean(), rtol=1e-5)
+  # policy_kl_loss = mean(alpha * logp_pi - qf1_pi): the first critic, not the minimum
+  a_loss, _ = jax.jit(actor_loss)(POLICY, QV, LOG_ALPHA, BATCH.obs, EPS)
+  np.testing.assert_allclose(float(a_loss), np.mean(alpha * logp_pi - np_q(Q, b.obs, a_pi)[:, 0]), rtol=1e-5)
+  assert not np.allclose(np_q(Q, b.obs, a_pi)[:, 0], np.min(np_q(Q, b.obs, a_pi), -1))  # the test can tell
+  # nothing flows into the policy or the target V from the critic loss
+  g_pi = jax.grad(lambda p: critic_loss(QV, QV_TARGET, p, LOG_ALPHA, BATCH, EPS)[0])(POLICY)
+  g_t = jax.grad(lambda t: critic_loss(QV, t, POLICY, LOG_ALPHA, BATCH, EPS)[0])(QV_TARGET)
+  assert all(float(jnp.max(jnp.abs(g))) == 0.0 for g in jax.tree_util.tree_leaves((g_pi, g_t)))
+
+
+def test_sb2_update_takes_every_loss_before_the_step_and_targets_v_only():
+  cfg = SACConfig(actor_lr=1e-2, critic_lr=2e-2, alpha_lr=3e-2, tau=0.1, gamma=GAMMA, value_net=True,
+                  reward_scale=REWARD_SCALE, target_entropy=TARGET_ENTROPY, batch_size=B)
+  pi_opt, q_opt, a_opt = make_optimizers(cfg)
+  state = SACState(
+      policy_params=to_j(POLICY), q_params=to_j(QV), target_q_params=to_j(QV_TARGET),
+      policy_opt_state=pi_opt.init(to_j(POLICY)), q_opt_state=q_opt.init(to_j(QV)),
+      log_alpha=jnp.asarray(LOG_ALPHA), alpha_opt_state=a_opt.init(jnp.asarray(LOG_ALPHA)),
+      update_steps=jnp.zeros((), jnp.int32))
+  noise = np.stack([EPS[::-1], EPS])  # SB2 samples one action per state, the actor's (noise[1])
+  new, metrics = jax.jit(make_update(STUB_V, cfg, ACT))(state, to_j(BATCH), noise)
+  critic_loss, actor_loss, _ = sb2_losses()
+  gq, _ = jax.grad(critic_loss, has_aux=True)(QV, QV_TARGET, POLICY, LOG_ALPHA, BATCH, noise[1])
+  step = lambda p, g, lr: jax.tree_util.tree_map(lambda x, d: x - lr * np.sign(d), p, g)
+  expect_qv = step(QV, gq, 2e-2)
+  for k in ("q", "v"):
+    for name in ("w", "c"):
+      np.testing.assert_allclose(new.q_params[k][name], expect_qv[k][name], atol=1e-6)
+  # the actor's gradient is taken at the critics before their step
+  gp, _ = jax.grad(actor_loss, has_aux=True)(POLICY, QV, LOG_ALPHA, BATCH.obs, noise[1])
+  np.testing.assert_allclose(new.policy_params["W"], POLICY["W"] - 1e-2 * np.sign(gp["W"]), atol=1e-6)
+  # Polyak averaging on V alone (SB2's target/values_fn/vf)
+  assert set(new.target_q_params) == {"v"}
+  np.testing.assert_allclose(new.target_q_params["v"]["w"],
+                             0.9 * V_TARGET["w"] + 0.1 * np.asarray(new.q_params["v"]["w"]), atol=1e-6)
+  assert "v" in metrics
+

@@ -1,4 +1,5 @@
-"""SAC networks: flax MLPs, a tanh-squashed diagonal Gaussian policy and a twin Q function.
+"""SAC networks: flax MLPs, a tanh-squashed diagonal Gaussian policy, a twin Q function and, for SB2's
+SAC (``value_net``), a state-value function V.
 
 The policy network outputs the **pre-tanh** Gaussian ``(loc, scale)``; everything else (sampling,
 log-probabilities, the deterministic action, the closed-form KL between two policies) is a pure
@@ -86,6 +87,11 @@ class SACNetworks:
   q_apply(q_params, obs, action, obs_norm=None) -> q                shape obs.shape[:-1] + (2,)
   policy_init(key) -> policy_params;  q_init(key) -> q_params
 
+  With ``value_net`` (SB2's SAC, the authors' code), ``q_params`` is ``{"q": twin Q, "v": V}`` (SB2's
+  ``values_fn`` scope, one optimiser) and ``v_apply(params, obs, obs_norm=None) -> V(s)`` (shape
+  ``obs.shape[:-1]``) reads ``params["v"]``, so it applies to ``q_params`` and to the target
+  ``{"v": V'}`` alike.
+
   ``obs_norm``: running observation statistics (:mod:`hdt.agents.normalizer`) that normalise ``obs``
   first, or None for raw observations. brax passes them first; here they come last and optional, so
   that networks without a normaliser (every LL, the default) are applied as ``(params, obs)``.
@@ -97,6 +103,8 @@ class SACNetworks:
   q_init: Callable[[jax.Array], Params] | None = None
   observation_size: int | None = None
   action_size: int | None = None
+  value_net: bool = False
+  v_apply: Callable[..., jax.Array] | None = None
 
 
 def make_sac_networks(
@@ -105,15 +113,20 @@ def make_sac_networks(
     hidden_sizes: Sequence[int] = (64, 64),
     critic_hidden_sizes: Sequence[int] | None = None,
     activation: Callable[[jax.Array], jax.Array] = nn.relu,
+    value_net: bool = False,
 ) -> SACNetworks:
-  """Builds the policy and twin-Q networks (float32 parameters)."""
+  """Builds the policy and twin-Q networks (float32 parameters), plus V with ``value_net``."""
   critic_hidden_sizes = tuple(hidden_sizes if critic_hidden_sizes is None else critic_hidden_sizes)
   policy = GaussianPolicy(tuple(hidden_sizes), action_size, activation)
   q = TwinQ(critic_hidden_sizes, activation)
+  v = MLP(critic_hidden_sizes, 1, activation)
   dummy_obs = jnp.zeros((1, observation_size), jnp.float32)
   dummy_act = jnp.zeros((1, action_size), jnp.float32)
   policy_shapes = jax.eval_shape(policy.init, jax.random.PRNGKey(0), dummy_obs)
   q_shapes = jax.eval_shape(q.init, jax.random.PRNGKey(0), dummy_obs, dummy_act)
+  if value_net:
+    q_shapes = {"q": q_shapes, "v": jax.eval_shape(v.init, jax.random.PRNGKey(0), dummy_obs)}
+  norm = lambda obs, obs_norm: obs if obs_norm is None else normalizer.normalize(obs_norm, obs)
 
   def policy_init(key):
     return lecun_uniform_init(policy_shapes, key)
@@ -122,10 +135,13 @@ def make_sac_networks(
     return lecun_uniform_init(q_shapes, key)
 
   def policy_apply(params, obs, obs_norm=None):
-    return policy.apply(params, obs if obs_norm is None else normalizer.normalize(obs_norm, obs))
+    return policy.apply(params, norm(obs, obs_norm))
 
   def q_apply(params, obs, action, obs_norm=None):
-    return q.apply(params, obs if obs_norm is None else normalizer.normalize(obs_norm, obs), action)
+    return q.apply(params["q"] if value_net else params, norm(obs, obs_norm), action)
+
+  def v_apply(params, obs, obs_norm=None):
+    return v.apply(params["v"], norm(obs, obs_norm))[..., 0]
 
   return SACNetworks(
       policy_apply=policy_apply,
@@ -134,6 +150,8 @@ def make_sac_networks(
       q_init=q_init,
       observation_size=observation_size,
       action_size=action_size,
+      value_net=value_net,
+      v_apply=v_apply if value_net else None,
   )
 
 

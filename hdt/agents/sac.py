@@ -4,6 +4,13 @@ SAC as in Haarnoja et al. 2018 ("SAC and applications"): twin Q functions with t
 a clipped double-Q (twin-min) target, a tanh-squashed Gaussian policy, and a learned temperature
 ``alpha = exp(log_alpha)`` driven towards a target entropy (default ``-action_size``).
 
+``SACConfig.value_net`` selects stable-baselines 2's SAC instead, the one the authors' code runs
+(``bot_transfer/algs/discrim_sac.py``, ``kl_sac.py``, built on SB2's ``sac.py``): both Q functions
+regress on ``r + gamma * V'(s')`` from a target state-value net, V regresses on
+``min_i Q_i(s, a) - alpha * log pi(a|s)`` with ``a ~ pi``, the actor maximises ``Q_1`` (not the
+minimum), only V has a target network, and all losses are taken at the parameters before the update
+(one ``sess.run`` in SB2).
+
 Two optional plug-ins, both no-ops by default:
 
 * ``actor_regularizer(policy_params, obs) -> scalar`` is added to the actor loss (times a scale the
@@ -69,6 +76,9 @@ class SACConfig:
   # Running mean/std of the collected observations (SACState.obs_norm, hdt.agents.normalizer),
   # applied to the inputs of the policy and critics.
   normalize_observations: bool = False
+  # SB2's SAC (the authors'): a state-value net V with a target V', Q on r + gamma V'(s'), the actor
+  # on Q_1; False: twin-min target Q (module docstring). --preset paper sets it.
+  value_net: bool = False
 
   def __post_init__(self):
     # Normalise sequences to tuples so the config stays hashable (it is a static jit argument).
@@ -148,6 +158,9 @@ class SACConfig:
           f"learning_starts={self.learning_starts} >= total_env_steps={self.total_env_steps}: the "
           "agent would never learn; lower learning_starts",
       )
+    for name in ("normalize_observations", "value_net"):
+      v = getattr(self, name)
+      need(isinstance(v, bool), f"{name}={v!r}: must be True or False")
     need(math.isfinite(self.reward_scale), f"reward_scale={self.reward_scale}: must be finite")
     need(
         self.init_alpha > 0 and math.isfinite(self.init_alpha),
@@ -198,12 +211,34 @@ def make_losses(
   alpha_loss(log_alpha, log_prob)
       -mean_b log_alpha * stop_gradient(log_prob + target_entropy)   (as in SB2 / softlearning)
 
+  With ``networks.value_net`` (SB2's SAC), ``q_params`` holds Q and V, ``target_q_params`` V', and
+      critic_loss = 0.5 sum_i mean_b (Q_i(s, a) - y)^2 + 0.5 mean_b (V(s) - y_v)^2 with
+      y = reward_scale * r + discount * gamma * V'(s'),  y_v = min_i Q_i(s, a~) - alpha * log pi(a~|s),
+      a~ = tanh(loc(s) + scale(s) * eps) (``eps``: the actor's noise, the same action as the actor's);
+      actor_loss uses Q_1 instead of min_i Q_i.
+
   ``eps`` is standard-normal noise of shape ``(batch, action_size)``: the losses are deterministic
   functions of their inputs, which keeps them testable and lets the training step draw all its
   randomness at once. ``obs_norm``: the observation statistics every network applies (None: raw
   observations); never differentiated.
   """
-  policy_apply, q_apply = networks.policy_apply, networks.q_apply
+  policy_apply, q_apply, v_apply = networks.policy_apply, networks.q_apply, networks.v_apply
+
+  def value_critic_loss(q_params, target_v_params, policy_params, log_alpha, batch: Transition, eps,
+                        obs_norm=None):
+    alpha = jnp.exp(log_alpha)
+    target = jax.lax.stop_gradient(
+        reward_scale * batch.reward + batch.discount * gamma * v_apply(target_v_params, batch.next_obs, obs_norm)
+    )
+    q = q_apply(q_params, batch.obs, batch.action, obs_norm)
+    loc, scale = policy_apply(policy_params, batch.obs, obs_norm)
+    action, log_prob = nets.sample_from_noise(loc, scale, eps)
+    v_target = jax.lax.stop_gradient(
+        jnp.min(q_apply(q_params, batch.obs, action, obs_norm), axis=-1) - alpha * log_prob)
+    v = v_apply(q_params, batch.obs, obs_norm)
+    loss = (0.5 * jnp.sum(jnp.mean(jnp.square(q - target[..., None]), axis=0))
+            + 0.5 * jnp.mean(jnp.square(v - v_target)))
+    return loss, {"q": jnp.mean(q), "target_q": jnp.mean(target), "v": jnp.mean(v)}
 
   def critic_loss(q_params, target_q_params, policy_params, log_alpha, batch: Transition, eps,
                   obs_norm=None):
@@ -223,8 +258,9 @@ def make_losses(
     alpha = jnp.exp(log_alpha)
     loc, scale = policy_apply(policy_params, obs, obs_norm)
     action, log_prob = nets.sample_from_noise(loc, scale, eps)
-    min_q = jnp.min(q_apply(q_params, obs, action, obs_norm), axis=-1)
-    loss = jnp.mean(alpha * log_prob - min_q)
+    q = q_apply(q_params, obs, action, obs_norm)
+    q = q[..., 0] if networks.value_net else jnp.min(q, axis=-1)  # SB2's actor maximises Q_1
+    loss = jnp.mean(alpha * log_prob - q)
     if actor_regularizer is not None:
       # the statistics only when there are some: regularisers of raw-observation runs take two arguments
       reg = actor_regularizer(policy_params, obs, *(() if obs_norm is None else (obs_norm,)))
@@ -236,7 +272,7 @@ def make_losses(
   def alpha_loss(log_alpha, log_prob):
     return -jnp.mean(log_alpha * jax.lax.stop_gradient(log_prob + target_entropy))
 
-  return critic_loss, actor_loss, alpha_loss
+  return (value_critic_loss if networks.value_net else critic_loss), actor_loss, alpha_loss
 
 
 def soft_update(target_params: Params, online_params: Params, tau: float) -> Params:
@@ -253,8 +289,8 @@ def soft_update(target_params: Params, online_params: Params, tau: float) -> Par
 @struct.dataclass
 class SACState:
   policy_params: Params
-  q_params: Params
-  target_q_params: Params
+  q_params: Params  # twin Q; with value_net {"q": twin Q, "v": V}
+  target_q_params: Params  # target twin Q; with value_net {"v": V'} (SB2 keeps a target of V only)
   policy_opt_state: Any
   q_opt_state: Any
   log_alpha: jax.Array  # float32 scalar
@@ -286,6 +322,11 @@ def make_optimizers(config: SACConfig, hyper: dict | None = None):
   return optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"]), optax.adam(h["alpha_lr"])
 
 
+def target_part(networks: nets.SACNetworks, q_params: Params) -> Params:
+  """The part of the critics that has a target network: all of them, or V alone (SB2)."""
+  return {"v": q_params["v"]} if networks.value_net else q_params
+
+
 def init_sac_state(networks: nets.SACNetworks, config: SACConfig, key: jax.Array) -> SACState:
   """Fresh parameters, optimiser states and temperature; empty observation statistics when
   ``config.normalize_observations``."""
@@ -297,7 +338,7 @@ def init_sac_state(networks: nets.SACNetworks, config: SACConfig, key: jax.Array
   return SACState(
       policy_params=policy_params,
       q_params=q_params,
-      target_q_params=jax.tree_util.tree_map(jnp.copy, q_params),
+      target_q_params=jax.tree_util.tree_map(jnp.copy, target_part(networks, q_params)),
       policy_opt_state=pi_opt.init(policy_params),
       q_opt_state=q_opt.init(q_params),
       log_alpha=log_alpha,
@@ -325,7 +366,8 @@ def make_update(
   under vmap); None uses the config's, as constants.
 
   Order within one update: critic step (current alpha), actor step (new critic), alpha step (the
-  actor's log-probs), then the soft target update.
+  actor's log-probs), then the soft target update. With ``networks.value_net`` (SB2) the actor's loss
+  is taken at the critics before their step, and the critic loss's V target uses the actor's noise.
   """
   target_entropy = config.target_entropy_for(action_size)
   reg_name = getattr(actor_regularizer, "metric_name", "regularizer")
@@ -346,13 +388,14 @@ def make_update(
 
     (c_loss, c_aux), g = critic_grad(
         state.q_params, state.target_q_params, state.policy_params, state.log_alpha, batch,
-        eps_critic, state.obs_norm,
+        eps_actor if networks.value_net else eps_critic, state.obs_norm,
     )
     upd, q_opt_state = q_opt.update(g, state.q_opt_state, state.q_params)
     q_params = optax.apply_updates(state.q_params, upd)
 
     (a_loss, a_aux), g = actor_grad(
-        state.policy_params, q_params, state.log_alpha, batch.obs, eps_actor, reg_scale, state.obs_norm
+        state.policy_params, state.q_params if networks.value_net else q_params, state.log_alpha,
+        batch.obs, eps_actor, reg_scale, state.obs_norm
     )
     upd, policy_opt_state = pi_opt.update(g, state.policy_opt_state, state.policy_params)
     policy_params = optax.apply_updates(state.policy_params, upd)
@@ -361,7 +404,7 @@ def make_update(
     upd, alpha_opt_state = a_opt.update(g, state.alpha_opt_state, state.log_alpha)
     log_alpha = optax.apply_updates(state.log_alpha, upd)
 
-    target_q_params = soft_update(state.target_q_params, q_params, h["tau"])
+    target_q_params = soft_update(state.target_q_params, target_part(networks, q_params), h["tau"])
     new_state = SACState(
         policy_params=policy_params,
         q_params=q_params,
@@ -384,7 +427,7 @@ def make_update(
         reg_name: a_aux["regularizer"],
         f"{reg_name}_weight": jnp.asarray(reg_scale, jnp.float32),
         "batch_reward": jnp.mean(batch.reward),
-    }
+    } | ({"v": c_aux["v"]} if networks.value_net else {})
     return new_state, metrics
 
   return update

@@ -179,7 +179,8 @@ def _normal_from_bits(bits: jax.Array) -> jax.Array:
 def make_networks(env, config: SACConfig) -> nets.SACNetworks:
   """The SAC networks make_train builds for ``env`` and ``config`` (pure functions; cheap)."""
   return nets.make_sac_networks(
-      int(env.observation_size), int(env.action_size), config.hidden_sizes, config.critic_sizes)
+      int(env.observation_size), int(env.action_size), config.hidden_sizes, config.critic_sizes,
+      value_net=config.value_net)
 
 
 def make_train(

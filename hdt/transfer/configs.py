@@ -103,7 +103,8 @@ PRESETS = {
     "cpu": dict(low=dict(num_envs=8, updates_per_step=8, num_eval_episodes=16),
                 high=dict(total_env_steps=6000, num_envs=8, updates_per_step=8, steps_per_chunk=75,
                           num_eval_episodes=8)),
-    "paper": dict(low={}, high={}),
+    # the authors' SAC is SB2's (a state-value net, SACConfig.value_net); hdt's default is twin-min Q
+    "paper": dict(low=dict(value_net=True), high=dict(value_net=True)),
 }
 CPU_LOW_STEPS = {"point": 20_000, "manip": 60_000, "legged": 100_000}
 CPU_LOW_EVALS = 10

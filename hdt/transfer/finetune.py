@@ -195,8 +195,13 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params,
                                    **(card_a.obs_layout.task_options() | task_overrides))
   a_norm = ckpt.NORM in a_params  # A's observation statistics, saved beside its policy
+  a_vnet = "v" in a_params["q"]  # A ran SB2's SAC (SACConfig.value_net)
   if config is None:
-    config = configs.high_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm)
+    config = configs.high_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm,
+                                 value_net=a_vnet)
+  if init == "sac" and config.value_net != a_vnet:
+    raise ckpt.CheckpointError(f"{high} was trained with value_net={a_vnet} and finetuning starts from its "
+                               f"critics: pass --value-net {a_vnet} (or init='policy')")
   card_b = lambda config: PolicyCard.from_env(env, "high", config, low=low_rec, task_overrides=task_overrides)
   card_a.compatible_with(card_b(config).replace(source=str(low)), "finetune")
   if lr is not None:
