@@ -114,6 +114,12 @@ def test_paper_preset_runs_the_authors_sb2_sac_and_the_others_twin_q():
     assert _cli_config(level, "paper", **kw).value_net
   args = cli.build_parser().parse_args(["train", "low", "--agent", "point", "--preset", "paper", "--value-net", "false"])
   assert not cli.sac_config(args, "low", agent="point").value_net
+  # booleans are parsed once, by the CLI; the configs refuse anything else
+  from hdt.agents.discriminator import DiscConfig
+  args = cli.build_parser().parse_args(["align", "--agent", "arm3", "--imitate", "x", "--disc-include-z", "false"])
+  assert cli._overrides(args, DiscConfig, "disc_") == {"include_z": False}
+  with pytest.raises(ValueError, match="include_z='false' must be True or False"):
+    DiscConfig(include_z="false")
 
 
 def test_cli_presets_are_the_configs_table():

@@ -80,12 +80,8 @@ class DiscConfig:
   def __post_init__(self):
     object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
     bad = []
-    for k in ("w_decay", "include_z", "scale_inputs"):  # the CLI passes its options as strings
-      v = getattr(self, k)
-      if isinstance(v, str):
-        if v.lower() not in ("true", "false", "1", "0"):
-          bad.append(f"{k}={v!r} must be true or false")
-        object.__setattr__(self, k, v.lower() in ("true", "1"))
+    bad += [f"{k}={getattr(self, k)!r} must be True or False" for k in ("w_decay", "include_z", "scale_inputs")
+            if not isinstance(getattr(self, k), bool)]  # the CLI parses true/false (cli._bool)
     bad += [f"{k}={getattr(self, k)!r} must be a positive integer" for k in
            ("batch_size", "update_every", "buffer_size") if not getattr(self, k) > 0]
     bad += [f"stop={self.stop!r} must be in (0, 1]"] if not 0.0 < self.stop <= 1.0 else []

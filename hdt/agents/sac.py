@@ -224,6 +224,9 @@ def make_losses(
   """
   policy_apply, q_apply, v_apply = networks.policy_apply, networks.q_apply, networks.v_apply
 
+  def q_regression(q, target):  # 0.5 * sum_i mean_b (Q_i - y)^2, both SACs
+    return 0.5 * jnp.sum(jnp.mean(jnp.square(q - target[..., None]), axis=0))
+
   def value_critic_loss(q_params, target_v_params, policy_params, log_alpha, batch: Transition, eps,
                         obs_norm=None):
     alpha = jnp.exp(log_alpha)
@@ -236,8 +239,7 @@ def make_losses(
     v_target = jax.lax.stop_gradient(
         jnp.min(q_apply(q_params, batch.obs, action, obs_norm), axis=-1) - alpha * log_prob)
     v = v_apply(q_params, batch.obs, obs_norm)
-    loss = (0.5 * jnp.sum(jnp.mean(jnp.square(q - target[..., None]), axis=0))
-            + 0.5 * jnp.mean(jnp.square(v - v_target)))
+    loss = q_regression(q, target) + 0.5 * jnp.mean(jnp.square(v - v_target))
     return loss, {"q": jnp.mean(q), "target_q": jnp.mean(target), "v": jnp.mean(v)}
 
   def critic_loss(q_params, target_q_params, policy_params, log_alpha, batch: Transition, eps,
@@ -251,8 +253,7 @@ def make_losses(
         reward_scale * batch.reward + batch.discount * gamma * next_v
     )
     q = q_apply(q_params, batch.obs, batch.action, obs_norm)
-    loss = 0.5 * jnp.sum(jnp.mean(jnp.square(q - target[..., None]), axis=0))
-    return loss, {"q": jnp.mean(q), "target_q": jnp.mean(target)}
+    return q_regression(q, target), {"q": jnp.mean(q), "target_q": jnp.mean(target)}
 
   def actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0, obs_norm=None):
     alpha = jnp.exp(log_alpha)
