@@ -202,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
   ft.add_argument("--kl", type=float, default=1.0, help="initial KL weight beta; 0 = plain finetuning")
   ft.add_argument("--anneal-frac", type=float, default=0.5, help="beta reaches 0 after this fraction")
   ft.add_argument("--mode", choices=("forward", "reverse"), default="forward", help="KL direction")
-  ft.add_argument("--mean-only", action="store_true", help="tie only the means")
+  ft.add_argument("--mean-only", action="store_true", help="tie only the means: the squared distance of the pre-tanh means (the authors' kl_type=mean)")
   ft.add_argument("--lr", type=float, default=None, help="all learning rates (paper: 0.01 / 0.001)")
   ft.add_argument("--low-seed", type=int, default=0)
   ft.add_argument("--reference-params", choices=("best", "final"), default="best",

@@ -39,9 +39,10 @@ def test_kl_regularizer_matches_closed_form(two_policies, mode, mean_only):
   assert float(reg(pa, obs)) == pytest.approx(0.0, abs=1e-6)
   la, sa = map(np.asarray, net.policy_apply(pa, obs))  # reference (A)
   lb, sb = map(np.asarray, net.policy_apply(pb, obs))  # current (B)
-  if mean_only:
-    sb = sa
-  want = np.mean(np_kl(lb, sb, la, sa) if mode == "forward" else np_kl(la, sa, lb, sb))
+  if mean_only:  # the authors' kl_type='mean' (algs/kl_sac.py): squared distance of the means
+    want = np.mean(np.sum((lb - la) ** 2, axis=-1))
+  else:
+    want = np.mean(np_kl(lb, sb, la, sa) if mode == "forward" else np_kl(la, sa, lb, sb))
   got = float(jax.jit(reg)(pb, obs))
   assert want > 0.01
   assert got == pytest.approx(want, rel=1e-4)

@@ -43,8 +43,8 @@ def make_kl_regularizer(
 
   mode="forward": KL(pi || ref)  (= KL(pi_B || pi_A), the paper's term)
   mode="reverse": KL(ref || pi)
-  mean_only=True: both scales are set to the reference's scale, so only the means matter:
-      sum_d (loc_pi - loc_ref)^2 / (2 scale_ref^2)   (the same for both modes).
+  mean_only=True: the authors' ``kl_type='mean'`` (``algs/kl_sac.py`` ``KLSAC.setup_model``), not a KL:
+      sum_d (loc_pi - loc_ref)^2   (the same for both modes; scales are ignored).
   The KL is summed over action dimensions and averaged over all leading (batch) axes of ``obs``.
   Each policy applies its own observation statistics to the raw ``obs``: ``obs_norm`` (the trained
   policy's) and ``reference_obs_norm`` (the reference's, saved with it); None: raw observations.
@@ -72,7 +72,7 @@ def make_kl_term(policy_apply, mode: str = "forward", mean_only: bool = False):
     loc, scale = policy_apply(policy_params, obs, obs_norm)
     ref_loc, ref_scale = jax.lax.stop_gradient(policy_apply(reference_params, obs, reference_obs_norm))
     if mean_only:
-      scale = ref_scale
+      return jnp.mean(jnp.sum(jnp.square(loc - ref_loc), axis=-1))
     if mode == "forward":
       kl = nets.gaussian_kl(loc, scale, ref_loc, ref_scale)
     else:
