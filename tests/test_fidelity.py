@@ -282,3 +282,34 @@ def test_insert_ll_trains_and_only_an_insert_ll_drives_the_insert_hl(tmp_path):
     high_env("insert", plain.run_dir)
   assert "\n" not in str(e.value)
   high_env("push1", plain.run_dir)  # the plain LL still drives the push tasks
+
+
+@pytest.mark.parametrize("agent", ["arm2", "arm3", "arm4"])
+def test_capsule_base_pole_is_as_near_as_the_authors_cylinder(agent):
+  # reacher_push*.xml's base pole is a cylinder (r 0.01, 0.03 high); hdt's is a capsule on the same
+  # segment (MJX has no cylinder-box collision). The fingertip moves in the plane z = 0.015 and the
+  # block's sides span the pole's height, so their distances to the pole are the cylinder's (down to
+  # contact; deeper overlaps, which contacts prevent, are not compared).
+  m = E.make(agent, "push1").mj_model
+  pole, tip, block = (mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)
+                      for n in ("agent/base", "agent/fingertip", "block/block"))
+  assert m.geom_type[pole] == mujoco.mjtGeom.mjGEOM_CAPSULE
+  cyl = E.make(agent, "push1").mj_model
+  cyl.geom_type[pole] = mujoco.mjtGeom.mjGEOM_CYLINDER  # same size (r, half-height) and centre
+  dc, dy = mujoco.MjData(m), mujoco.MjData(cyl)
+  rng, limit = np.random.default_rng(0), m.jnt_range[3:].max()
+  near = {tip: 0, block: 0}
+  for _ in range(400):
+    r, th = rng.uniform(0.03, 0.08), rng.uniform(-np.pi, np.pi)  # block centre (world xy = its qpos)
+    q = np.concatenate([[r * np.cos(th), r * np.sin(th)], [rng.uniform(-np.pi, np.pi)],
+                        rng.uniform(-limit, limit, m.nq - 3)])
+    for d, mm in ((dc, m), (dy, cyl)):
+      d.qpos[:] = q
+      mujoco.mj_forward(mm, d)
+    for g in (tip, block):
+      a = mujoco.mj_geomDistance(m, dc, pole, g, 0.05, None)
+      b = mujoco.mj_geomDistance(cyl, dy, pole, g, 0.05, None)
+      if -0.002 < min(a, b) < 0.05:
+        near[g] += 1
+        assert a == pytest.approx(b, abs=1e-6), (g, q)
+  assert near[tip] > 10 and near[block] > 50, near  # the check saw both objects close to the pole
