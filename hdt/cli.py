@@ -199,11 +199,15 @@ def build_parser() -> argparse.ArgumentParser:
   ft.add_argument("--high", required=True, type=Path, help="HL run directory of agent A")
   ft.add_argument("--low", required=True, type=Path, help="LL run directory of agent B")
   ft.add_argument("--task", required=True)
-  ft.add_argument("--kl", type=float, default=1.0, help="initial KL weight beta; 0 = plain finetuning")
+  ft.add_argument("--kl", type=float, default=None,
+                  help="initial KL weight beta; 0 = plain finetuning (default: the task's, as the paper: 1 for "
+                       "Waypoint and manipulation, 0.01 for Maze and Steps)")
   ft.add_argument("--anneal-frac", type=float, default=0.5, help="beta reaches 0 after this fraction")
   ft.add_argument("--mode", choices=("forward", "reverse"), default="forward", help="KL direction")
   ft.add_argument("--mean-only", action="store_true", help="tie only the means: the squared distance of the pre-tanh means (the authors' kl_type=mean)")
-  ft.add_argument("--lr", type=float, default=None, help="all learning rates (paper: 0.01 / 0.001)")
+  ft.add_argument("--lr", type=float, default=None,
+                  help="all learning rates (default: the task's, as the paper: 0.01 for Waypoint and "
+                       "manipulation, 0.001 for Maze and Steps, unless --actor-lr/--critic-lr/--alpha-lr set them)")
   ft.add_argument("--low-seed", type=int, default=0)
   ft.add_argument("--reference-params", choices=("best", "final"), default="best",
                   help="A's parameters the KL ties to: its best periodic evaluation's (as the authors; "
@@ -412,10 +416,15 @@ def cmd_finetune(args) -> int:
   # A's network and SAC kind: finetuning starts from A's SAC
   cfg = sac_config(args, "high", task=args.task, hidden_sizes=tuple(hm["hidden_sizes"]),
                    value_net=bool(hm.get("sac", {}).get("value_net", False)))
-  out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{args.kl:g}")
-  res = finetune_high(args.high, args.low, args.task, kl=args.kl, config=cfg, seeds=_seeds(args), out=out,
+  # The paper's finetuning beta and learning rate for the task, unless the command sets them
+  hp = configs.finetune_params(args.task)
+  kl = hp["kl"] if args.kl is None else args.kl
+  own_lr = any(getattr(args, f) is not None for f in ("actor_lr", "critic_lr", "alpha_lr"))
+  lr = args.lr if args.lr is not None or own_lr else hp["lr"]
+  out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{kl:g}")
+  res = finetune_high(args.high, args.low, args.task, kl=kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
-                      backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
+                      backend=args.backend, quiet=args.quiet, lr=lr, low_seed=args.low_seed,
                       low_params=args.low_params, reference_params=args.reference_params,
                       **_run_kw(args),
                       **(configs.task_options(args.preset, args.task) | _key_values(args.set, "--set")))

@@ -470,3 +470,26 @@ def test_resume_with_a_larger_budget_extends_a_finished_run_exactly(runs, tmp_pa
   # a budget below what was trained is refused in one line
   assert main(["train", "low", "--agent", "point", "--out", str(run), "--resume", *TINY_LOW]) != 0
   assert "already trained 1200 env steps" in capsys.readouterr().err
+
+
+def test_finetune_takes_the_papers_beta_and_learning_rate_of_the_task(monkeypatch, tmp_path):
+  # Paper, Appendix: beta 1 and lr 0.01 for Waypoint and manipulation; Maze/Steps beta 0.01, lr 0.001.
+  import hdt.transfer.finetune as ft
+  seen = {}
+
+  class Result:
+    history, run_dir, best = {}, tmp_path, None
+
+  def fake(high, low, task, **kw):
+    seen.clear()
+    seen.update(kw, task=task)
+    return Result
+
+  monkeypatch.setattr(ft, "finetune_high", fake)
+  run = lambda high, task, *extra: main(["finetune", "--high", high, "--low", "zoo:point/low", "--task", task,
+                                         "--preset", "smoke", "--quiet", "--out", str(tmp_path / "o"), *extra])
+  assert run("zoo:point/waypoint", "waypoint") == 0 and (seen["kl"], seen["lr"]) == (1.0, 1e-2)
+  assert run("zoo:point/maze", "maze") == 0 and (seen["kl"], seen["lr"]) == (0.01, 1e-3)
+  assert run("zoo:point/maze", "maze", "--kl", "0", "--lr", "5e-3") == 0 and (seen["kl"], seen["lr"]) == (0.0, 5e-3)
+  assert run("zoo:point/maze", "maze", "--actor-lr", "2e-3") == 0 and seen["lr"] is None
+  assert seen["config"].actor_lr == 2e-3

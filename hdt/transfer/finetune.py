@@ -122,7 +122,7 @@ def start_plugin(a_params, pick, seed_list, config, high, init: str = "sac") -> 
   return Plugin(name="start_from_a", init=init_fn)
 
 
-def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
+def finetune_high(high: str | Path, low: str | Path, task: str, kl: float | None = None,
                   config: SACConfig | None = None, seeds=1, out=None, anneal_frac: float = 0.5,
                   mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
                   lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
@@ -131,14 +131,14 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                   overwrite=False, **task_overrides) -> RunResult:
   """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
 
-  kl: initial weight beta of the KL term (paper: 1 for Waypoint / manipulation, 0.01 for Maze);
-    0 = plain finetuning (no regulariser).
+  kl: initial weight beta of the KL term; None: the task's, as the paper (1 for Waypoint /
+    manipulation, 0.01 for Maze and Steps, :func:`configs.finetune_params`); 0 = plain finetuning.
   anneal_frac: beta goes linearly to 0 at ``anneal_frac * config.total_env_steps`` env steps.
   mode: "forward" KL(pi_B || pi_A) (paper) or "reverse" KL(pi_A || pi_B); mean_only: only the means
-    are tied (both scales set to A's), see :func:`hdt.agents.kl.make_kl_regularizer`.
+    are tied (the authors' kl_type="mean"), see :func:`hdt.agents.kl.make_kl_regularizer`.
   config: SAC config; default :func:`configs.high_config` of ``task`` with A's hidden sizes.
-  lr: if given, overrides actor, critic and temperature learning rates (paper: 0.01 Waypoint /
-    manipulation, 0.001 Maze).
+  lr: if given, overrides actor, critic and temperature learning rates; None: the task's (paper: 0.01
+    Waypoint / manipulation, 0.001 Maze and Steps) when ``config`` is None, else ``config``'s.
   low_seed, low_params: the seed of ``low`` whose LL drives every HL seed, and which of its
     parameters (as in ``train_high``).
   reference_seed: A's seed used as the frozen KL reference for every seed.
@@ -150,6 +150,9 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
   learning_starts: env steps of uniform-random actions before learning; 0 (default) as the authors'
     finetuning script; None keeps ``config.learning_starts``.
   """
+  hp = configs.finetune_params(task)
+  kl = hp["kl"] if kl is None else kl
+  lr = hp["lr"] if lr is None and config is None else lr
   stage = finetune_stage(high, low, task, kl, config, seeds, anneal_frac, mode, mean_only, backend, lr,
                          low_seed, reference_seed, init, learning_starts, low_params, reference_params,
                          **task_overrides)
