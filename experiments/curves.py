@@ -1,6 +1,9 @@
 """Learning curves of finished runs as PNG + CSV (mean over seeds, ±1 std band): for RESULTS.md.
 
   PYTHONPATH=. python experiments/curves.py RUN [RUN ...] --metric success_max --out experiments/results/NAME
+
+A RUN is a run directory, ``label=RUN_DIR``, or ``label=FILE.csv#name``: the series ``name`` of a CSV this
+script wrote before (for a run whose directory is gone). ``--hline label=value`` draws a reference level.
 """
 
 from __future__ import annotations
@@ -17,6 +20,16 @@ from hdt import plots  # noqa: E402
 from hdt.report import read_eval_curves  # noqa: E402
 
 
+def from_csv(path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
+  """``(x[T], y[S, T])`` of series ``name`` in a CSV written by this script."""
+  with open(path) as f:
+    rows = [r for r in csv.DictReader(f) if r["run"] == name]
+  if not rows:
+    raise ValueError(f"{path} has no series {name!r}")
+  seeds = sorted((k for k in rows[0] if k.startswith("seed_") and rows[0][k] != ""), key=lambda k: int(k[5:]))
+  return np.array([float(r["x"]) for r in rows]), np.array([[float(r[k]) for r in rows] for k in seeds])
+
+
 def main(argv=None):
   p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   p.add_argument("runs", nargs="+", help="run directories (label=RUN to name a line)")
@@ -24,17 +37,23 @@ def main(argv=None):
   p.add_argument("--out", required=True, help="output path without extension (.png and .csv are written)")
   p.add_argument("--xlabel", default="HL decisions")
   p.add_argument("--title", default="")
+  p.add_argument("--hline", action="append", default=[], help="label=value: a dashed reference level")
+  p.add_argument("--xmax", type=float, default=None, help="drop points beyond this x")
   a = p.parse_args(argv)
   series, rows = {}, []
   for spec in a.runs:
     label, _, run = spec.rpartition("=") if "=" in spec else (Path(spec).name, "", spec)
-    x, y = read_eval_curves(run)[f"eval/{a.metric}"]
+    x, y = from_csv(*run.split("#", 1)) if "#" in run else read_eval_curves(run)[f"eval/{a.metric}"]
+    if a.xmax is not None:
+      x, y = x[x <= a.xmax], y[:, x <= a.xmax]
     series[label] = (x, y)
     for t in range(len(x)):
       rows.append({"run": label, "x": x[t], "mean": float(np.mean(y[:, t])), "std": float(np.std(y[:, t])),
                    **{f"seed_{i}": float(y[i, t]) for i in range(y.shape[0])}})
   out = Path(a.out)
-  plots.learning_curves(series, out.with_suffix(".png"), title=a.title, xlabel=a.xlabel, ylabel=a.metric)
+  hline = {k: float(v) for k, _, v in (h.rpartition("=") for h in a.hline)}
+  plots.learning_curves(series, out.with_suffix(".png"), hline=hline, title=a.title, xlabel=a.xlabel,
+                        ylabel=a.metric)
   keys = list(dict.fromkeys(k for r in rows for k in r))
   with open(out.with_suffix(".csv"), "w", newline="") as f:
     w = csv.DictWriter(f, fieldnames=keys)
