@@ -405,6 +405,16 @@ def cmd_align(args) -> int:
   return _finish(res, args)
 
 
+def _finetune_sac(args, a_meta: dict, grid=()) -> dict:
+  """SAC fields of a finetune of A's HL: A's network and SAC kind (it starts from A's SAC), and the
+  task's finetuning learning rate (the paper's) unless the command sets one or grids one."""
+  lrs = ("actor_lr", "critic_lr", "alpha_lr")
+  out = dict(hidden_sizes=tuple(a_meta["hidden_sizes"]), value_net=bool(a_meta.get("sac", {}).get("value_net", False)))
+  if getattr(args, "lr", None) is None and not any(getattr(args, f, None) is not None or f in grid for f in lrs):
+    out |= dict.fromkeys(lrs, configs.finetune_params(args.task)["lr"])
+  return {k: v for k, v in out.items() if k not in grid}
+
+
 def cmd_finetune(args) -> int:
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer.finetune import finetune_high
@@ -413,18 +423,12 @@ def cmd_finetune(args) -> int:
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
   hm = ckpt.require(ckpt.load_meta(args.high), {"agent": str, "hidden_sizes": list}, args.high)
   lm = load_low(args.low, args.low_seed)[1]
-  # A's network and SAC kind: finetuning starts from A's SAC
-  cfg = sac_config(args, "high", task=args.task, hidden_sizes=tuple(hm["hidden_sizes"]),
-                   value_net=bool(hm.get("sac", {}).get("value_net", False)))
-  # The paper's finetuning beta and learning rate for the task, unless the command sets them
-  hp = configs.finetune_params(args.task)
-  kl = hp["kl"] if args.kl is None else args.kl
-  own_lr = any(getattr(args, f) is not None for f in ("actor_lr", "critic_lr", "alpha_lr"))
-  lr = args.lr if args.lr is not None or own_lr else hp["lr"]
+  cfg = sac_config(args, "high", task=args.task, **_finetune_sac(args, hm))
+  kl = configs.finetune_params(args.task)["kl"] if args.kl is None else args.kl  # the paper's beta of the task
   out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{kl:g}")
   res = finetune_high(args.high, args.low, args.task, kl=kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
-                      backend=args.backend, quiet=args.quiet, lr=lr, low_seed=args.low_seed,
+                      backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
                       low_params=args.low_params, reference_params=args.reference_params,
                       **_run_kw(args),
                       **(configs.task_options(args.preset, args.task) | _key_values(args.set, "--set")))
@@ -584,8 +588,8 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
   from hdt.transfer import checkpoint as ckpt
   level = {"finetune": "high", "align": "low"}.get(args.level, args.level)  # of the SAC config
   extra = {}
-  if args.level == "finetune":  # as `hdt finetune`: A's hidden sizes, the preset's task options
-    extra = dict(hidden_sizes=tuple(ckpt.load_meta(args.high)["hidden_sizes"]))
+  if args.level == "finetune":  # as `hdt finetune`, and the preset's task options
+    extra = _finetune_sac(args, ckpt.load_meta(args.high), grid)
     overrides = configs.task_options(args.preset, args.task) | overrides
   names, runs = [], []
   for values in itertools.product(*grid.values()):

@@ -488,8 +488,18 @@ def test_finetune_takes_the_papers_beta_and_learning_rate_of_the_task(monkeypatc
   monkeypatch.setattr(ft, "finetune_high", fake)
   run = lambda high, task, *extra: main(["finetune", "--high", high, "--low", "zoo:point/low", "--task", task,
                                          "--preset", "smoke", "--quiet", "--out", str(tmp_path / "o"), *extra])
-  assert run("zoo:point/waypoint", "waypoint") == 0 and (seen["kl"], seen["lr"]) == (1.0, 1e-2)
-  assert run("zoo:point/maze", "maze") == 0 and (seen["kl"], seen["lr"]) == (0.01, 1e-3)
+  lrs = lambda: (seen["config"].actor_lr, seen["config"].critic_lr, seen["config"].alpha_lr)
+  assert run("zoo:point/waypoint", "waypoint") == 0 and seen["kl"] == 1.0 and lrs() == (1e-2,) * 3
+  assert run("zoo:point/maze", "maze") == 0 and seen["kl"] == 0.01 and lrs() == (1e-3,) * 3
   assert run("zoo:point/maze", "maze", "--kl", "0", "--lr", "5e-3") == 0 and (seen["kl"], seen["lr"]) == (0.0, 5e-3)
   assert run("zoo:point/maze", "maze", "--actor-lr", "2e-3") == 0 and seen["lr"] is None
-  assert seen["config"].actor_lr == 2e-3
+  assert lrs() == (2e-3, 3e-4, 3e-4)  # the other two: the preset's
+  # `hdt sweep finetune` takes the same defaults; a gridded learning rate is the grid's.
+  from hdt.transfer import pipeline
+  monkeypatch.setattr(pipeline, "sweep", lambda level, runs, *a, **k: seen.update(runs=runs) or 1 / 0)
+  sweep = lambda *grid: main(["sweep", "finetune", "--high", "zoo:point/maze", "--low", "zoo:point/low", "--task",
+                              "maze", "--preset", "smoke", "--quiet", "--out", str(tmp_path / "sw"), *grid])
+  sweep("--grid", "kl_weight=0,1")
+  assert [(c.actor_lr, c.critic_lr) for c, _, _ in seen["runs"]] == [(1e-3, 1e-3)] * 2
+  sweep("--grid", "actor_lr=1e-4,1e-2", "--overwrite")
+  assert [(c.actor_lr, c.critic_lr) for c, _, _ in seen["runs"]] == [(1e-4, 3e-4), (1e-2, 3e-4)]
