@@ -405,14 +405,9 @@ def cmd_align(args) -> int:
   return _finish(res, args)
 
 
-def _finetune_sac(args, a_meta: dict, grid=()) -> dict:
-  """SAC fields of a finetune of A's HL: A's network and SAC kind (it starts from A's SAC), and the
-  task's finetuning learning rate (the paper's) unless the command sets one or grids one."""
-  lrs = ("actor_lr", "critic_lr", "alpha_lr")
-  out = dict(hidden_sizes=tuple(a_meta["hidden_sizes"]), value_net=bool(a_meta.get("sac", {}).get("value_net", False)))
-  if getattr(args, "lr", None) is None and not any(getattr(args, f, None) is not None or f in grid for f in lrs):
-    out |= dict.fromkeys(lrs, configs.finetune_params(args.task)["lr"])
-  return {k: v for k, v in out.items() if k not in grid}
+def _a_sac(a_meta: dict) -> dict:
+  """A's network and SAC kind: a finetune starts from A's whole SAC."""
+  return dict(hidden_sizes=tuple(a_meta["hidden_sizes"]), value_net=bool(a_meta.get("sac", {}).get("value_net", False)))
 
 
 def cmd_finetune(args) -> int:
@@ -423,7 +418,7 @@ def cmd_finetune(args) -> int:
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
   hm = ckpt.require(ckpt.load_meta(args.high), {"agent": str, "hidden_sizes": list}, args.high)
   lm = load_low(args.low, args.low_seed)[1]
-  cfg = sac_config(args, "high", task=args.task, **_finetune_sac(args, hm))
+  cfg = sac_config(args, "finetune", task=args.task, **_a_sac(hm))  # the task's finetuning lr unless set
   kl = configs.finetune_params(args.task)["kl"] if args.kl is None else args.kl  # the paper's beta of the task
   out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{kl:g}")
   res = finetune_high(args.high, args.low, args.task, kl=kl, config=cfg, seeds=_seeds(args), out=out,
@@ -586,10 +581,10 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
   from hdt.report import fmt
   from hdt.transfer import pipeline
   from hdt.transfer import checkpoint as ckpt
-  level = {"finetune": "high", "align": "low"}.get(args.level, args.level)  # of the SAC config
+  level = {"align": "low"}.get(args.level, args.level)  # of the SAC config
   extra = {}
   if args.level == "finetune":  # as `hdt finetune`, and the preset's task options
-    extra = _finetune_sac(args, ckpt.load_meta(args.high), grid)
+    extra = {k: v for k, v in _a_sac(ckpt.load_meta(args.high)).items() if k not in grid}
     overrides = configs.task_options(args.preset, args.task) | overrides
   names, runs = [], []
   for values in itertools.product(*grid.values()):

@@ -493,7 +493,7 @@ def test_finetune_takes_the_papers_beta_and_learning_rate_of_the_task(monkeypatc
   assert run("zoo:point/maze", "maze") == 0 and seen["kl"] == 0.01 and lrs() == (1e-3,) * 3
   assert run("zoo:point/maze", "maze", "--kl", "0", "--lr", "5e-3") == 0 and (seen["kl"], seen["lr"]) == (0.0, 5e-3)
   assert run("zoo:point/maze", "maze", "--actor-lr", "2e-3") == 0 and seen["lr"] is None
-  assert lrs() == (2e-3, 3e-4, 3e-4)  # the other two: the preset's
+  assert lrs() == (2e-3, 1e-3, 1e-3)  # the other two: the task's
   # `hdt sweep finetune` takes the same defaults; a gridded learning rate is the grid's.
   from hdt.transfer import pipeline
   monkeypatch.setattr(pipeline, "sweep", lambda level, runs, *a, **k: seen.update(runs=runs) or 1 / 0)
@@ -502,4 +502,4 @@ def test_finetune_takes_the_papers_beta_and_learning_rate_of_the_task(monkeypatc
   sweep("--grid", "kl_weight=0,1")
   assert [(c.actor_lr, c.critic_lr) for c, _, _ in seen["runs"]] == [(1e-3, 1e-3)] * 2
   sweep("--grid", "actor_lr=1e-4,1e-2", "--overwrite")
-  assert [(c.actor_lr, c.critic_lr) for c, _, _ in seen["runs"]] == [(1e-4, 3e-4), (1e-2, 3e-4)]
+  assert [(c.actor_lr, c.critic_lr) for c, _, _ in seen["runs"]] == [(1e-4, 1e-3), (1e-2, 1e-3)]

@@ -70,6 +70,13 @@ def high_config(task: str, **overrides) -> SACConfig:
   return _fit(_lrs(dict(_HIGH, total_env_steps=hl_budget(task))) | overrides)
 
 
+def finetune_config(task: str, **overrides) -> SACConfig:
+  """HL finetuning config: the HL's, with the task's finetuning learning rate for actor, critic and
+  temperature (paper: 0.01 Waypoint and manipulation, 0.001 Maze and Steps; :func:`finetune_params`)."""
+  return high_config(task, **(dict.fromkeys(("actor_lr", "critic_lr", "alpha_lr"), finetune_params(task)["lr"])
+                              | overrides))
+
+
 def full_config(agent: str, task: str, **overrides) -> SACConfig:
   """Flat SAC on the task with the agent's torques: the agent's LL network, the task's budget (the
   Full baseline takes one torque per env step, so its budget is in LL env steps; paper table)."""
@@ -124,10 +131,10 @@ def task_options(preset: str, task: str) -> dict:
 
 
 def preset_overrides(preset: str, level: str, agent: str | None = None) -> dict:
-  """SACConfig overrides of ``preset`` for ``level`` ("low", "high" or "full")."""
+  """SACConfig overrides of ``preset`` for ``level`` ("low", "high", "finetune" (as "high") or "full")."""
   if preset not in PRESETS:
     raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
-  over = dict(PRESETS[preset]["high" if level == "high" else "low"])
+  over = dict(PRESETS[preset]["high" if level in ("high", "finetune") else "low"])
   if preset == "cpu" and level in ("low", "full"):
     steps = CPU_LOW_STEPS[family_key(agent)]
     over |= dict(total_env_steps=steps, steps_per_chunk=chunk_for(steps, over["num_envs"], CPU_LOW_EVALS))
@@ -146,16 +153,18 @@ def describe_paper_budgets() -> str:
 def config(level: str, preset: str = "paper", agent: str | None = None, task: str | None = None,
            **overrides) -> SACConfig:
   """The SACConfig of a training stage: the paper's values for the agent (``low``, ``full``) or the
-  task (``high``, ``full``), then ``preset``'s budget, then ``overrides``. The CLI and experiments/
-  both build their configs here."""
+  task (``high``, ``finetune``, ``full``), then ``preset``'s budget, then ``overrides``. The CLI and
+  experiments/ both build their configs here."""
   over = preset_overrides(preset, level, agent) | overrides
   if level == "high":
     return high_config(task, **over)
+  if level == "finetune":
+    return finetune_config(task, **over)
   if level == "full":
     return full_config(agent, task, **over)
   if level == "low":
     return low_config(agent, **over)
-  raise ValueError(f"unknown level {level!r}; choose low, high or full")
+  raise ValueError(f"unknown level {level!r}; choose low, high, finetune or full")
 
 
 def disc_config(agent_a: str, **overrides):

@@ -136,9 +136,9 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float | None
   anneal_frac: beta goes linearly to 0 at ``anneal_frac * config.total_env_steps`` env steps.
   mode: "forward" KL(pi_B || pi_A) (paper) or "reverse" KL(pi_A || pi_B); mean_only: only the means
     are tied (the authors' kl_type="mean"), see :func:`hdt.agents.kl.make_kl_regularizer`.
-  config: SAC config; default :func:`configs.high_config` of ``task`` with A's hidden sizes.
-  lr: if given, overrides actor, critic and temperature learning rates; None: the task's (paper: 0.01
-    Waypoint / manipulation, 0.001 Maze and Steps) when ``config`` is None, else ``config``'s.
+  config: SAC config; default :func:`configs.finetune_config` of ``task`` (the task's finetuning
+    learning rate, the paper's) with A's hidden sizes and SAC kind.
+  lr: if given, overrides actor, critic and temperature learning rates of ``config``.
   low_seed, low_params: the seed of ``low`` whose LL drives every HL seed, and which of its
     parameters (as in ``train_high``).
   reference_seed: A's seed used as the frozen KL reference for every seed.
@@ -150,9 +150,7 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float | None
   learning_starts: env steps of uniform-random actions before learning; 0 (default) as the authors'
     finetuning script; None keeps ``config.learning_starts``.
   """
-  hp = configs.finetune_params(task)
-  kl = hp["kl"] if kl is None else kl
-  lr = hp["lr"] if lr is None and config is None else lr
+  kl = configs.finetune_params(task)["kl"] if kl is None else kl
   stage = finetune_stage(high, low, task, kl, config, seeds, anneal_frac, mode, mean_only, backend, lr,
                          low_seed, reference_seed, init, learning_starts, low_params, reference_params,
                          **task_overrides)
@@ -200,8 +198,8 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
   a_norm = ckpt.NORM in a_params  # A's observation statistics, saved beside its policy
   a_vnet = "v" in a_params["q"]  # A ran SB2's SAC (SACConfig.value_net)
   if config is None:
-    config = configs.high_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm,
-                                 value_net=a_vnet)
+    config = configs.finetune_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm,
+                                     value_net=a_vnet)
   if init == "sac" and config.value_net != a_vnet:
     raise ckpt.CheckpointError(f"{high} was trained with value_net={a_vnet} and finetuning starts from its "
                                f"critics: pass --value-net {a_vnet} (or init='policy')")
