@@ -353,3 +353,25 @@ def study_interface(st: FinetuneStudy, presets: dict, paper: dict, doc: str | No
     return finetune_markdown(result, paper)
 
   return run, markdown, make_main(st.name, presets, run, markdown, doc)
+
+
+def hl_rollouts(high, low, record: Callable, episodes: int = 16, key: int = 1):
+  """For each seed of ``hdt.compose(high, low)``: ``(env, arrays)``, where ``arrays`` stacks
+  ``record(state, next_state)`` over ``episodes`` deterministic HL episodes (leading axes
+  [episode, HL step], one full horizon each: steps after an episode's end belong to the next one)."""
+  import jax
+  import hdt
+  from hdt.transfer.evaluate import _env_for
+  p = hdt.compose(high=high, low=low)
+  for i in range(p.num_seeds):
+    at = lambda t: jax.tree.map(lambda x: x[i], t)
+    env = _env_for(p, None, "auto", at(p.low_params), low_obs_norm=at(p.low_obs_norm))
+    act, params = p.card.policy_fn(at(p.obs_norm)), at(p.params)
+
+    def episode(k):
+      def step(s, _):
+        n = env.step(s, act(params, s.obs))
+        return n, record(s, n)
+      return jax.lax.scan(step, env.reset(k), None, length=env.horizon)[1]
+
+    yield env, jax.tree.map(np.asarray, jax.jit(jax.vmap(episode))(jax.random.split(jax.random.PRNGKey(key), episodes)))

@@ -7,35 +7,21 @@ so it fits only within about 24 degrees of vertical (0.01 / cos a < 0.014 - clea
 import sys
 from pathlib import Path
 
-import jax
 import numpy as np
 
-import hdt
 from hdt import envs
-from hdt.transfer.evaluate import _env_for
 from hdt.transfer.hierarchy import HighLevelEnv
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import scripted  # noqa: E402  (the scripted controllers of tests/test_fidelity.py)
+from experiments import common as C  # noqa: E402
 
 
 def deepest(high: str, low: str, episodes: int = 16):
-  p = hdt.compose(high=high, low=low)
+  record = lambda s, n: (n.obs_hi, n.metrics["success"], n.done)
   rows = []
-  for i in range(p.num_seeds):
-    at = lambda t: jax.tree.map(lambda x: x[i], t)
-    env = _env_for(p, None, "auto", at(p.low_params), low_obs_norm=at(p.low_obs_norm))
-    act, params = p.card.policy_fn(at(p.obs_norm)), at(p.params)
-
-    def episode(key):
-      def step(s, _):
-        s = env.step(s, act(params, s.obs))
-        return s, (s.obs_hi, s.metrics["success"], s.done)
-      _, (hi, succ, done) = jax.lax.scan(step, env.reset(key), None, length=env.horizon)
-      return hi, succ, done
-
-    hi, succ, done = jax.jit(jax.vmap(episode))(jax.random.split(jax.random.PRNGKey(1), episodes))
-    hi, succ, done = map(np.asarray, (hi, succ, done))
+  for i, (_, (hi, succ, done)) in enumerate(C.hl_rollouts(high, low, record, episodes)):
     alive = np.cumsum(done, 1) == 0  # before the episode's end (its last state is the next reset's)
     y = np.where(alive, hi[..., 1], np.inf)
     j = np.argmin(y, 1)

@@ -10,32 +10,19 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
-import jax
 import numpy as np
 
-import hdt
-from hdt.transfer.evaluate import _env_for
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script or loaded by path
+from experiments import common as C  # noqa: E402
 
 
 def track(high: str, low: str, task: str, episodes: int = 16, key: int = 1) -> list[dict]:
   """Per LL seed: tracking statistics of ``high``'s deterministic episodes over ``low`` (seed i of each)."""
-  p = hdt.compose(high=high, low=low)
+  record = lambda s, n: (s.obs_hi, n.metrics["sub_goal_dist"], n.metrics["ll_steps"], n.metrics["success"], n.done)
   rows = []
-  for i in range(p.num_seeds):
-    at = lambda t: jax.tree.map(lambda x: x[i], t)
-    env = _env_for(p, None, "auto", at(p.low_params), low_obs_norm=at(p.low_obs_norm))
-    act, params = p.card.policy_fn(at(p.obs_norm)), at(p.params)
-
-    def episode(k):
-      def step(s, _):
-        n = env.step(s, act(params, s.obs))
-        return n, (s.obs_hi, n.metrics["sub_goal_dist"], n.metrics["ll_steps"], n.metrics["success"], n.done)
-      _, out = jax.lax.scan(step, env.reset(k), None, length=env.horizon)
-      return out
-
-    hi, dist, ll_steps, succ, done = map(np.asarray, jax.jit(jax.vmap(episode))(
-        jax.random.split(jax.random.PRNGKey(key), episodes)))
+  for i, (env, (hi, dist, ll_steps, succ, done)) in enumerate(C.hl_rollouts(high, low, record, episodes, key)):
     live = np.cumsum(done, 1) - done == 0  # HL steps up to and including the episode's last
     block = hi[..., 2:4]
     moved = np.linalg.norm(np.where(live[..., None], block - block[:, :1], 0.0), axis=-1).max(1)
