@@ -1,6 +1,7 @@
 """Discriminative LL alignment (paper Algorithm 1): discriminator, reward sign, schedules, plug-ins,
 offline collection and the align_low entry point."""
 
+import dataclasses
 import json
 
 import jax
@@ -161,6 +162,32 @@ def test_aux_update_buffer_and_update_cadence_vmapped():
   changed = jax.tree.leaves(jax.tree.map(lambda a, b: bool(jnp.any(a != b)), aux["params"], params0))
   assert any(changed)
   assert np.all(np.isfinite(np.asarray(m["disc/loss"])))
+
+
+def test_every_nth_episode_is_held_out_to_measure_accuracy_only():
+  """DSAC.learn: the rows of every discrim_test_data_collection_freq-th episode (1-based count) go to a
+  test buffer that no update samples; its accuracy is logged as disc/test_acc."""
+  cfg = D.DiscConfig(test_every=2, update_every=1, buffer_size=100, batch_size=4, lr=1e-2, data="fixed")
+  al = D.make_alignment(cfg, _taus(np.random.default_rng(1), 32, 0.1), total_env_steps=1000, num_envs=2)
+  aux, upd = al.aux_init(jax.random.PRNGKey(0)), jax.jit(al.aux_update)
+  for t in range(12):  # env 0: episodes of 3 steps; env 1: of 4 steps; each row is tagged with t
+    first = jnp.array([t % 3 == 0, t % 4 == 0], jnp.float32)
+    obs = jnp.stack([jnp.full((5,), 10.0 * t), jnp.full((5,), 10.0 * t + 1)])
+    tr = Transition(obs=obs, action=jnp.zeros((2, 2)), reward=jnp.zeros(2), next_obs=obs, discount=jnp.ones(2),
+                    extras={"z": jnp.zeros((2, 2)), "first": first})
+    aux, m = upd(aux, tr, jnp.int32(2 * (t + 1)), jax.random.PRNGKey(t))
+  # env 0's episodes 2 and 4 (t 3-5, 9-11), env 1's episode 2 (t 4-7) are held out
+  held = sorted([10 * t for t in (3, 4, 5, 9, 10, 11)] + [10 * t + 1 for t in (4, 5, 6, 7)])
+  kept = sorted(set(10 * t + e for t in range(12) for e in (0, 1)) - set(held))
+  assert sorted(np.asarray(aux["tbuf"][: int(aux["tsize"]), 0]).tolist()) == held
+  assert sorted(np.asarray(aux["buf"][: int(aux["size"]), 0]).tolist()) == kept
+  assert int(aux["ptr"]) == len(kept) and int(aux["tptr"]) == len(held)
+  assert 0.0 <= float(m["disc/test_acc"]) <= 1.0  # a held-out batch exists by now
+  # test_every=0: every row trains, as before
+  al0 = D.make_alignment(dataclasses.replace(cfg, test_every=0), _taus(np.random.default_rng(1), 32, 0.1),
+                         total_env_steps=1000, num_envs=2)
+  aux0, m0 = jax.jit(al0.aux_update)(al0.aux_init(jax.random.PRNGKey(0)), tr, jnp.int32(2), jax.random.PRNGKey(0))
+  assert "tbuf" not in aux0 and "disc/test_acc" not in m0 and int(aux0["size"]) == 2
 
 
 # A: the point LL trained once per session (point_low, conftest.py).

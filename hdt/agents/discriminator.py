@@ -72,6 +72,10 @@ class DiscConfig:
   reward_clip: float = 10.0  # (discrim_clip)
   stop: float = 0.5  # updates only while step < stop T, lr linearly to 0 at stop T (discrim_stop)
   buffer_size: int = 125_000  # per class (the authors' 250k buffer holds both classes)
+  # Every test_every-th LL episode of each B env (with A's rows beside it) goes to a held-out buffer of
+  # buffer_size / 2 rows per class that only measures accuracy, disc/test_acc (DSAC.learn,
+  # discrim_test_data_collection_freq = 10); 0: every row trains. Needs episode starts (include_z or A alongside).
+  test_every: int = 10
   include_z: bool = True  # z in the input (discrim_include_skill)
   data: str = "offline"  # A's data: "offline" / "online" (A alongside B; see the module) or "fixed" (a set)
   expert_time_limit: int = 32  # A's episode length alongside B (README --discrim-time-limit); 0: A's LL horizon
@@ -90,6 +94,8 @@ class DiscConfig:
     bad += [f"{k}={getattr(self, k)!r} must be in [0, 1]" for k in ("w_init", "w_min")
             if not 0.0 <= getattr(self, k) <= 1.0]
     bad += [f"start={self.start!r} must be >= 0"] if not self.start >= 0 else []
+    bad += [f"test_every={self.test_every!r} must be >= 0 (0: no held-out episodes)"] \
+        if not self.test_every >= 0 else []
     bad += [f"expert_time_limit={self.expert_time_limit!r} must be >= 0 (0: A's LL horizon)"] \
         if not self.expert_time_limit >= 0 else []
     bad += [f"data={self.data!r} must be one of {DATA_MODES}"] if self.data not in DATA_MODES else []
@@ -226,7 +232,9 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     env must be a reach env too (its task state gives z).
   tau_scale: inputs are divided by it before the MLP (1 = the authors' raw units).
   The aux state: ``params``, ``opt_state``, ``buf`` (B's inputs), ``ptr``, ``size``, ``env_steps``,
-  and online ``buf_a`` (A's inputs, written in lockstep with ``buf``) and ``a_state`` (A's envs).
+  and online ``buf_a`` (A's inputs, written in lockstep with ``buf``) and ``a_state`` (A's envs); with
+  held-out episodes (``cfg.test_every``) also ``ep`` (episodes begun per B env) and the held-out
+  ``tbuf`` (``tbuf_a``), ``tptr``, ``tsize``.
   """
   online = cfg.data != "fixed"  # A runs alongside B
   n_in = cfg.input_size
@@ -247,6 +255,8 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
   adam = optax.scale_by_adam()  # the step size is applied by hand: the authors' lr is a function of env steps
   cap, bs, ue, T = cfg.buffer_size, cfg.batch_size, cfg.update_every, int(total_env_steps)
   max_k = math.ceil(num_envs / ue)  # discriminator updates per training step, at most
+  te = cfg.test_every if extras is not None else 0  # held-out episodes need episode starts
+  cap_t = max(cap // 2, 1)
 
   def inputs(tr: Any) -> jax.Array:
     return disc_input(tr.obs, tr.next_obs, tr.extras["z"] if cfg.include_z else None)
@@ -259,6 +269,11 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     if online:
       aux["buf_a"] = jnp.zeros((cap, n_in), jnp.float32)
       aux["a_state"] = jax.vmap(expert.env.reset)(jax.random.split(key, num_envs))
+    if te:
+      aux |= dict(ep=jnp.zeros((num_envs,), jnp.int32), tbuf=jnp.zeros((cap_t, n_in), jnp.float32),
+                  tptr=jnp.zeros((), jnp.int32), tsize=jnp.zeros((), jnp.int32))
+      if online:
+        aux["tbuf_a"] = jnp.zeros((cap_t, n_in), jnp.float32)
     return aux
 
   def step_expert(a_state, extras, key):
@@ -284,16 +299,32 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     return optax.apply_updates(params, upd), opt_state, loss, acc
 
   def aux_update(aux, transitions, env_steps, key, disc_weight=None):  # disc_weight: w0, see reward_weight
-    k_bits, k_a = jax.random.split(key)
+    k_bits, k_a, k_t = jax.random.split(key, 3)
     x_b = inputs(transitions).reshape(-1, n_in)
     n = x_b.shape[0]
-    idx = (aux["ptr"] + jnp.arange(n)) % cap
     out = dict(aux)
+    held = jnp.zeros((n,), bool)
+    if te:  # DSAC.learn: rows of every te-th episode (1-based count) go to the test buffer
+      out["ep"] = aux["ep"] + (transitions.extras["first"].reshape(n) > 0)
+      held = (out["ep"] % te == 0) & (out["ep"] >= te)
+    keep = ~held
+    # Kept rows fill the ring from ptr, held rows the test ring from tptr; the others' index is out of
+    # range, and .at[].set(mode="drop") skips it.
+    idx = jnp.where(keep, (aux["ptr"] + jnp.cumsum(keep) - 1) % cap, cap)
+    write = lambda b, i, x: b.at[i].set(x, mode="drop")
     if online:
       out["a_state"], x_a = step_expert(aux["a_state"], transitions.extras, k_a)
-      out["buf_a"] = aux["buf_a"].at[idx].set(x_a)
-    buf = aux["buf"].at[idx].set(x_b)
-    ptr, size = (aux["ptr"] + n) % cap, jnp.minimum(aux["size"] + n, cap)
+      out["buf_a"] = write(aux["buf_a"], idx, x_a)
+    buf = write(aux["buf"], idx, x_b)
+    n_keep = jnp.sum(keep).astype(jnp.int32)
+    ptr, size = (aux["ptr"] + n_keep) % cap, jnp.minimum(aux["size"] + n_keep, cap)
+    if te:
+      tidx = jnp.where(held, (aux["tptr"] + jnp.cumsum(held) - 1) % cap_t, cap_t)
+      out["tbuf"] = write(aux["tbuf"], tidx, x_b)
+      if online:
+        out["tbuf_a"] = write(aux["tbuf_a"], tidx, x_a)
+      n_held = n - n_keep
+      out["tptr"], out["tsize"] = (aux["tptr"] + n_held) % cap_t, jnp.minimum(aux["tsize"] + n_held, cap_t)
     env_steps = jnp.asarray(env_steps, jnp.int32)
     # The env-step indices s in [prev, env_steps) of this training step with s % update_every == 0
     # get one update each (DSAC.learn: `step % discrim_train_freq == 0 and step / T < stop`).
@@ -324,6 +355,15 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     step = env_steps - 1
     metrics = {"disc/loss": jnp.sum(loss * on) / n_on, "disc/acc": jnp.sum(acc * on) / n_on,
                "disc/w": reward_weight(cfg, step, T, disc_weight), "disc/lr": disc_lr(cfg, step, T)}
+    if te:  # accuracy on a held-out batch (NaN until the test buffer holds one)
+      tb = jax.random.bits(k_t, (3, bs), jnp.uint32)
+      t_is_b = (tb[0] & 1) == 1
+      ti = (tb[1] % jnp.maximum(out["tsize"], 1).astype(jnp.uint32)).astype(jnp.int32)
+      ta = (tb[2] % (jnp.maximum(out["tsize"], 1) if online else jnp.int32(tau_a.shape[0])).astype(jnp.uint32)
+            ).astype(jnp.int32)
+      x = jnp.where(t_is_b[:, None], out["tbuf"][ti], (out["tbuf_a"] if online else tau_a)[ta])
+      t_acc = disc_loss(apply, params, x, jnp.where(t_is_b, B_LABEL, A_LABEL))[1]
+      metrics["disc/test_acc"] = jnp.where(2 * out["tsize"] >= bs, t_acc, jnp.nan)
     out.update(params=params, opt_state=opt_state, buf=buf, ptr=ptr, size=size, env_steps=env_steps)
     return out, metrics
 
