@@ -185,6 +185,22 @@ def _select(c, a, b):
   return jax.tree_util.tree_map(lambda x, y: jnp.where(c, x, y), a, b)
 
 
+def _ring_slots(mask, ptr, size, cap):
+  """Slots for the rows where ``mask`` is set, in order from ``ptr`` in a ring of ``cap`` rows (index
+  ``cap`` elsewhere, which ``.at[].set(mode="drop")`` skips), and the ring's new ``ptr`` and ``size``."""
+  idx = jnp.where(mask, (ptr + jnp.cumsum(mask) - 1) % cap, cap)
+  k = jnp.sum(mask).astype(jnp.int32)
+  return idx, (ptr + k) % cap, jnp.minimum(size + k, cap)
+
+
+def _draw(bits, n_b, n_a):
+  """A class-balanced draw from ``bits[..., 3, batch]``: a fair coin for the class, then a uniform row
+  among the ``n_b`` rows of B or the ``n_a`` rows of A. Returns (is_b, row of B, row of A)."""
+  is_b = (bits[..., 0, :] & 1) == 1
+  row = lambda b, n: (b % jnp.asarray(n).astype(jnp.uint32)).astype(jnp.int32)
+  return is_b, row(bits[..., 1, :], n_b), row(bits[..., 2, :], n_a)
+
+
 def restart_on_z(env, state, z, where, reset_physics):
   """One reach-env state restarted (where ``where``) on relative goal ``z``: the goal becomes the
   current goal-space point + z, the physics restarts from a fresh start draw where ``reset_physics``
@@ -307,24 +323,18 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     if te:  # DSAC.learn: rows of every te-th episode (1-based count) go to the test buffer
       out["ep"] = aux["ep"] + (transitions.extras["first"].reshape(n) > 0)
       held = (out["ep"] % te == 0) & (out["ep"] >= te)
-    keep = ~held
-    # Kept rows fill the ring from ptr, held rows the test ring from tptr; the others' index is out of
-    # range, and .at[].set(mode="drop") skips it.
-    idx = jnp.where(keep, (aux["ptr"] + jnp.cumsum(keep) - 1) % cap, cap)
+    # Kept rows fill the training ring from ptr, held rows the test ring from tptr
+    idx, ptr, size = _ring_slots(~held, aux["ptr"], aux["size"], cap)
     write = lambda b, i, x: b.at[i].set(x, mode="drop")
     if online:
       out["a_state"], x_a = step_expert(aux["a_state"], transitions.extras, k_a)
       out["buf_a"] = write(aux["buf_a"], idx, x_a)
     buf = write(aux["buf"], idx, x_b)
-    n_keep = jnp.sum(keep).astype(jnp.int32)
-    ptr, size = (aux["ptr"] + n_keep) % cap, jnp.minimum(aux["size"] + n_keep, cap)
     if te:
-      tidx = jnp.where(held, (aux["tptr"] + jnp.cumsum(held) - 1) % cap_t, cap_t)
+      tidx, out["tptr"], out["tsize"] = _ring_slots(held, aux["tptr"], aux["tsize"], cap_t)
       out["tbuf"] = write(aux["tbuf"], tidx, x_b)
       if online:
         out["tbuf_a"] = write(aux["tbuf_a"], tidx, x_a)
-      n_held = n - n_keep
-      out["tptr"], out["tsize"] = (aux["tptr"] + n_held) % cap_t, jnp.minimum(aux["tsize"] + n_held, cap_t)
     env_steps = jnp.asarray(env_steps, jnp.int32)
     # The env-step indices s in [prev, env_steps) of this training step with s % update_every == 0
     # get one update each (DSAC.learn: `step % discrim_train_freq == 0 and step / T < stop`).
@@ -333,12 +343,9 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     s_j = s0 + ue * jnp.arange(max_k)
     due = (s_j < env_steps) & (s_j < cfg.stop * T) & (2 * size >= bs)
     # Samples drawn uniformly from the class-balanced buffer: a fair coin for the class, then a row.
-    bits = jax.random.bits(k_bits, (max_k, 3, bs), jnp.uint32)
-    is_b = (bits[:, 0] & 1) == 1
-    i_b = (bits[:, 1] % size.astype(jnp.uint32)).astype(jnp.int32)
     a_src = out["buf_a"] if online else tau_a
-    n_a = size if online else jnp.int32(tau_a.shape[0])
-    i_a = (bits[:, 2] % n_a.astype(jnp.uint32)).astype(jnp.int32)
+    is_b, i_b, i_a = _draw(jax.random.bits(k_bits, (max_k, 3, bs), jnp.uint32), size,
+                           size if online else tau_a.shape[0])
 
     def body(carry, xs):
       params, opt_state = carry
@@ -356,11 +363,8 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     metrics = {"disc/loss": jnp.sum(loss * on) / n_on, "disc/acc": jnp.sum(acc * on) / n_on,
                "disc/w": reward_weight(cfg, step, T, disc_weight), "disc/lr": disc_lr(cfg, step, T)}
     if te:  # accuracy on a held-out batch (NaN until the test buffer holds one)
-      tb = jax.random.bits(k_t, (3, bs), jnp.uint32)
-      t_is_b = (tb[0] & 1) == 1
-      ti = (tb[1] % jnp.maximum(out["tsize"], 1).astype(jnp.uint32)).astype(jnp.int32)
-      ta = (tb[2] % (jnp.maximum(out["tsize"], 1) if online else jnp.int32(tau_a.shape[0])).astype(jnp.uint32)
-            ).astype(jnp.int32)
+      n_t = jnp.maximum(out["tsize"], 1)
+      t_is_b, ti, ta = _draw(jax.random.bits(k_t, (3, bs), jnp.uint32), n_t, n_t if online else tau_a.shape[0])
       x = jnp.where(t_is_b[:, None], out["tbuf"][ti], (out["tbuf_a"] if online else tau_a)[ta])
       t_acc = disc_loss(apply, params, x, jnp.where(t_is_b, B_LABEL, A_LABEL))[1]
       metrics["disc/test_acc"] = jnp.where(2 * out["tsize"] >= bs, t_acc, jnp.nan)
