@@ -38,7 +38,7 @@ def evaluate(env, policy: Policy, params, key: jax.Array, num_episodes: int) -> 
   def bcast(alive, x):
     return alive.reshape(alive.shape + (1,) * (x.ndim - 1))
 
-  def step(c, _):
+  def step(c):
     s = v_step(c["state"], policy(params, c["state"].obs))
     alive = c["alive"]
     m = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), s.metrics)
@@ -53,9 +53,13 @@ def evaluate(env, policy: Policy, params, key: jax.Array, num_episodes: int) -> 
             lambda a, x: jnp.where(on(x), jnp.maximum(a, x), a), c["mmax"], m
         ),
         mlast=jax.tree_util.tree_map(lambda a, x: jnp.where(on(x), x, a), c["mlast"], m),
-    ), None
+        t=c["t"] + 1,
+    )
 
-  c, _ = jax.lax.scan(step, carry0, None, length=env.horizon)
+  # stops once every episode is done: later steps would add nothing (e.g. BlockPush HLs that
+  # succeed in a few of their 50 steps)
+  c = jax.lax.while_loop(lambda c: (c["t"] < env.horizon) & jnp.any(c["alive"] > 0), step,
+                         dict(carry0, t=jnp.zeros((), jnp.int32)))
   length = jnp.maximum(c["length"], 1.0)
   out = {
       "return": jnp.mean(c["ret"]),
