@@ -273,15 +273,15 @@ def test_align_low_online_runs_and_a_follows_b_goals(point_low, tmp_path, monkey
   np.testing.assert_array_equal(z_a[mid], z_b[mid])
 
 
-def _alongside_state(point_low, tmp_path, data, **disc_kw):
+def _alongside_state(point_low, tmp_path, data, agent="point", **disc_kw):
   """(A's and B's replay rows, env leaves) of a tiny alignment with A alongside B."""
   import orbax.checkpoint as ocp
 
   from hdt.transfer import checkpoint as ck
-  cfg = configs.low_config("point", total_env_steps=240, num_envs=4, steps_per_chunk=60, batch_size=16,
+  cfg = configs.low_config(agent, total_env_steps=240, num_envs=4, steps_per_chunk=60, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  align_low("point", imitate=point_low.run_dir, config=cfg, seeds=1, out=tmp_path / data, quiet=True,
-            disc=D.DiscConfig(data=data, buffer_size=500, update_every=1, **disc_kw), ll_horizon=50)
+  align_low(agent, imitate=getattr(point_low, "run_dir", point_low), config=cfg, seeds=1, out=tmp_path / data,
+            quiet=True, disc=D.DiscConfig(data=data, buffer_size=500, update_every=1, **disc_kw), ll_horizon=50)
   info = ck.load_state_info(tmp_path / data)
   arrays = ocp.PyTreeCheckpointer().restore(ck.state_dir(tmp_path / data).resolve() / "arrays")
   return {name: np.asarray(arrays["state"][f"{i:05d}"])[0] for i, (name, _, _) in enumerate(info["leaves"])}
@@ -359,3 +359,35 @@ def test_align_imitates_a_best_by_default(point_low, tmp_path, monkeypatch):
     np.testing.assert_array_equal(got["tau"], collect_offline(a, 64, key, num_envs=64, which=want))
     rec = got["meta"]["aligned_to"]
     assert rec["params"] == want and (want == "final" or rec["params_env_steps"] == 7)
+
+
+def test_a_restarts_from_its_hl_start_after_its_own_episode_ends():
+  """DiscriminatorEnv.step: ``expert_env.reset()`` (low=False) when A's episode ends, so A (here the
+  manipulation point mass) restarts at its HL start, (0.2, 0) +- 0.05 beyond the block, not at its LL
+  start, (0, 0) +- 0.05; ``expert_restart="low"`` keeps the LL start."""
+  import hdt.envs as E
+  env = E.make("arm_point", "reach")
+  keys = jax.random.split(jax.random.PRNGKey(0), 64)
+  s = jax.vmap(env.reset)(keys)
+  z = jnp.zeros((64, 2))
+
+  def tips(hl):
+    r = jax.vmap(lambda s, z: D.restart_on_z(env, s, z, jnp.bool_(True), jnp.bool_(True), hl))(s, z)
+    return np.asarray(jax.vmap(env.quantities)(r.physics)["point"])
+  hl, ll = tips(True), tips(False)
+  assert np.all(np.abs(hl - [0.2, 0.0]) <= 0.05 + 1e-6), hl
+  assert np.all(np.abs(ll) <= 0.05 + 1e-6), ll
+  assert np.std(hl, axis=0).min() > 0.01  # a fresh draw per env
+  assert D.DiscConfig().expert_restart == "high"
+  with pytest.raises(ValueError, match="expert_restart='mid' must be 'high' or 'low'"):
+    D.DiscConfig(expert_restart="mid")
+
+
+def test_alongside_b_a_restarts_at_its_hl_start_when_its_time_limit_ends(tmp_path):
+  """The manipulation point mass (zoo LL) as A: 60 steps per env, B's episodes of 50, A's of 10 steps.
+  A restarted at its LL start with B's episode at step 50 and, at its time limit after step 60, at its
+  HL start, where the run ends."""
+  leaves = _alongside_state("zoo:arm_point/low", tmp_path, "offline", agent="arm_point", expert_time_limit=10)
+  assert np.all(leaves[".aux['a_state'].task['steps']"] == 0)
+  qpos = leaves[".aux['a_state'].physics.qpos"][:, :2]  # the PM's slides: its position
+  assert np.all(np.abs(qpos - [0.2, 0.0]) <= 0.05 + 1e-6), qpos

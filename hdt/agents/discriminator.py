@@ -26,8 +26,9 @@ every B env, and A's rows carry B's relative goal z (``DiscriminatorEnv``, ``DSA
 ``"offline"`` (default: the paper's main results, the README's ``--discrim-online false``) starts A,
 at each of B's new goals, on a random goal of its own (``reset(low=True)`` samples a skill), and
 ``"online"`` on B's z (``reset`` then ``set_skill``). In both, when A's own episode ends (its done, or
-``expert_time_limit`` steps: the README's ``--discrim-time-limit 32``) A restarts from a fresh start
-on B's current z (``DiscriminatorEnv.step``). ``"fixed"`` is the paper text's description instead: a
+``expert_time_limit`` steps: the README's ``--discrim-time-limit 32``) A restarts from a fresh start of
+its HL episodes (``expert_env.reset()``, ``low=False``; ``expert_restart``) on B's current z
+(``DiscriminatorEnv.step``). ``"fixed"`` is the paper text's description instead: a
 fixed set of A's taus on uniformly drawn goals, each with A's own z.
 
 The plug-ins (:func:`make_alignment`) follow ``hdt.agents.train.make_train``'s contract and are pure
@@ -79,6 +80,9 @@ class DiscConfig:
   include_z: bool = True  # z in the input (discrim_include_skill)
   data: str = "offline"  # A's data: "offline" / "online" (A alongside B; see the module) or "fixed" (a set)
   expert_time_limit: int = 32  # A's episode length alongside B (README --discrim-time-limit); 0: A's LL horizon
+  # where A restarts after its own episode ends: "high", the start of its HL episodes (DiscriminatorEnv.step's
+  # expert_env.reset(), low=False); "low", its LL start (hdt before session 11)
+  expert_restart: str = "high"
   scale_inputs: bool = False  # True: divide inputs by A's delta_max (the authors feed raw units)
 
   def __post_init__(self):
@@ -99,6 +103,8 @@ class DiscConfig:
     bad += [f"expert_time_limit={self.expert_time_limit!r} must be >= 0 (0: A's LL horizon)"] \
         if not self.expert_time_limit >= 0 else []
     bad += [f"data={self.data!r} must be one of {DATA_MODES}"] if self.data not in DATA_MODES else []
+    bad += [f"expert_restart={self.expert_restart!r} must be 'high' or 'low'"] \
+        if self.expert_restart not in ("high", "low") else []
     if bad:
       raise ValueError(f"invalid DiscConfig: {'; '.join(bad)}; the defaults are the authors' values")
 
@@ -201,12 +207,12 @@ def _draw(bits, n_b, n_a):
   return is_b, row(bits[..., 1, :], n_b), row(bits[..., 2, :], n_a)
 
 
-def restart_on_z(env, state, z, where, reset_physics):
+def restart_on_z(env, state, z, where, reset_physics, hl_start: bool = False):
   """One reach-env state restarted (where ``where``) on relative goal ``z``: the goal becomes the
   current goal-space point + z, the physics restarts from a fresh start draw where ``reset_physics``
-  (as ``DiscriminatorEnv``'s ``expert_env.reset`` + ``set_skill``). Uses the env's own observation
-  function so A sees exactly what its LL was trained on."""
-  fresh = env.initial_physics(jax.random.fold_in(state.key, 1))  # a new episode start, as env.step's
+  (as ``DiscriminatorEnv``'s ``expert_env.reset`` + ``set_skill``), from the HL start if ``hl_start``.
+  Uses the env's own observation function so A sees exactly what its LL was trained on."""
+  fresh = env.initial_physics(jax.random.fold_in(state.key, 1), hl_start)  # a new episode start, as env.step's
   ps = _select(where & reset_physics, fresh, state.physics)
   q = env.quantities(ps)
   t = _select(where, {"goal": q["point"] + z, "z": z}, state.task["t"])
@@ -293,9 +299,10 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     return aux
 
   def step_expert(a_state, extras, key):
-    """A restarts where B's episode starts (on B's z online, on a random goal of its own offline),
-    takes one deterministic step, and restarts on B's current z (fresh physics) where its own episode
-    ended (``DiscriminatorEnv.reset`` / ``step``). Its input row carries B's z either way."""
+    """A restarts where B's episode starts (on B's z online, on a random goal of its own offline; its
+    LL start by A's reset coin), takes one deterministic step, and restarts on B's current z where its
+    own episode ended, from a fresh HL start (``cfg.expert_restart``) (``DiscriminatorEnv.reset`` /
+    ``step``). Its input row carries B's z either way."""
     env, z, first = expert.env, extras["z"], extras["first"] > 0
     coin = jax.vmap(lambda k: env.task.physics_reset(k, env.agent, jnp.bool_(False), jnp.bool_(True)))(
         jax.random.split(key, z.shape[0]))
@@ -305,7 +312,8 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     nxt = jax.vmap(env.step)(s, expert.policy_fn(expert.params, s.obs))
     x = disc_input(s.obs, nxt.next_obs, z if cfg.include_z else None)
     done = nxt.done > 0
-    nxt = jax.vmap(lambda s, z, d: restart_on_z(env, s, z, d, jnp.bool_(True)))(nxt, z, done)
+    hl = cfg.expert_restart == "high"
+    nxt = jax.vmap(lambda s, z, d: restart_on_z(env, s, z, d, jnp.bool_(True), hl))(nxt, z, done)
     return nxt, x
 
   def one_update(params, opt_state, x, labels, lr):

@@ -65,6 +65,7 @@ class AgentTaskEnv:
       for a in free:
         self._start_half[a:a + 7] = qpos_noise
     self._start_offset = np.zeros(m.nq, np.float32)
+    self._hl_start = (self._start_half.copy(), self._start_offset.copy())  # without the LL's own start
     if low and agent.ll_qpos_noise:
       if len(agent.ll_qpos_noise) != len(movable):
         raise ValueError(f"{agent.name}: ll_qpos_noise has {len(agent.ll_qpos_noise)} entries for "
@@ -122,11 +123,13 @@ class AgentTaskEnv:
     return (q["z"] < lo) | (q["z"] > hi)
 
   # -- reset / step ------------------------------------------------------------------------------
-  def initial_physics(self, key: jax.Array) -> PhysicsState:
-    """A fresh episode start: qpos0 (+ the LL offset) with uniform noise, clipped to the joint limits."""
+  def initial_physics(self, key: jax.Array, hl_start: bool = False) -> PhysicsState:
+    """A fresh episode start: qpos0 (+ the LL offset) with uniform noise, clipped to the joint limits.
+    ``hl_start``: in a reach env, the start of the agent's HL episodes instead (no LL offset or joint
+    draw; the authors' ``reset(low=False)``)."""
     k_pos, k_vel = jax.random.split(key)
-    half = self._start_half
-    qpos = self._qpos0 + self._start_offset + half * jax.random.uniform(k_pos, half.shape, minval=-1.0, maxval=1.0)
+    half, offset = self._hl_start if hl_start else (self._start_half, self._start_offset)
+    qpos = self._qpos0 + offset + half * jax.random.uniform(k_pos, half.shape, minval=-1.0, maxval=1.0)
     qpos = jnp.clip(qpos, self._qpos_lo, self._qpos_hi)
     for a in self._quats:
       qpos = qpos.at[a:a + 4].set(qpos[a:a + 4] / jnp.linalg.norm(qpos[a:a + 4]))
