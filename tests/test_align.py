@@ -273,14 +273,14 @@ def test_align_low_online_runs_and_a_follows_b_goals(point_low, tmp_path, monkey
   np.testing.assert_array_equal(z_a[mid], z_b[mid])
 
 
-def _alongside_state(point_low, tmp_path, data, agent="point", **disc_kw):
+def _alongside_state(imitate, tmp_path, data, agent="point", **disc_kw):
   """(A's and B's replay rows, env leaves) of a tiny alignment with A alongside B."""
   import orbax.checkpoint as ocp
 
   from hdt.transfer import checkpoint as ck
   cfg = configs.low_config(agent, total_env_steps=240, num_envs=4, steps_per_chunk=60, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  align_low(agent, imitate=getattr(point_low, "run_dir", point_low), config=cfg, seeds=1, out=tmp_path / data,
+  align_low(agent, imitate=getattr(imitate, "run_dir", imitate), config=cfg, seeds=1, out=tmp_path / data,
             quiet=True, disc=D.DiscConfig(data=data, buffer_size=500, update_every=1, **disc_kw), ll_horizon=50)
   info = ck.load_state_info(tmp_path / data)
   arrays = ocp.PyTreeCheckpointer().restore(ck.state_dir(tmp_path / data).resolve() / "arrays")

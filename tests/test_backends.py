@@ -17,13 +17,12 @@ import hdt.envs as E
 SMOOTH = 1e-4
 ROBOTS = Path(__file__).resolve().parents[1] / "examples" / "robots"
 HEXAPOD, ARM5 = str(ROBOTS / "hexapod.xml"), str(ROBOTS / "arm5.xml")
+SCENES = [("point", "maze"), ("arm_point", "push1"), ("arm2", "push1"), ("arm3", "insert"),
+          ("arm4", "push1"), ("quadruped", "reach"), ("ant", "reach"), ("ant3", "reach"),
+          ("ant2", "reach"), (HEXAPOD, "reach"), (ARM5, "push1")]
 # Tracing MJX under vmap is most of each case's 20-30 s; the variants of an agent family already
 # covered here (arm2 beside arm3/arm4/arm5, ant3 and ant2 beside ant) run with `-m slow` only.
-_variant = pytest.mark.slow
-SCENES = [("point", "maze"), ("arm_point", "push1"), pytest.param("arm2", "push1", marks=_variant),
-          ("arm3", "insert"), ("arm4", "push1"), ("quadruped", "reach"), ("ant", "reach"),
-          pytest.param("ant3", "reach", marks=_variant), pytest.param("ant2", "reach", marks=_variant),
-          (HEXAPOD, "reach"), (ARM5, "push1")]
+VARIANTS = {"arm2", "ant3", "ant2"}
 LEGGED = {"ant": (0.05, 1.5), "ant3": (0.05, 1.5), "ant2": (0.05, 1.5), "quadruped": (0.01, 0.1),
           HEXAPOD: (0.05, 1.5)}
 
@@ -42,12 +41,8 @@ def _rollouts(agent, task, backend, nenv=2, nstep=100):
   return np.asarray(jax.jit(run)(jax.random.split(jax.random.PRNGKey(0), nenv)))
 
 
-def _id(case):
-  agent, task = case.values if hasattr(case, "values") else case
-  return f"{Path(agent).stem}-{task}"
-
-
-@pytest.mark.parametrize("agent,task", SCENES, ids=[_id(c) for c in SCENES])
+@pytest.mark.parametrize("agent,task", [
+    pytest.param(a, t, id=f"{Path(a).stem}-{t}", marks=pytest.mark.slow if a in VARIANTS else ()) for a, t in SCENES])
 def test_backends_agree(agent, task):
   nat, mjx = _rollouts(agent, task, "native"), _rollouts(agent, task, "mjx")
   assert np.isfinite(mjx).all() and np.isfinite(nat).all()
