@@ -65,6 +65,28 @@ def heatmap(matrix: dict, path, title: str = "") -> Path:
   return _save(fig, path)
 
 
+def grouped_bars(bars: list[dict], path, title: str = "", ylabel: str = "success") -> Path:
+  """Bars of ``mean`` ± ``std`` grouped by ``group``, one colour per ``method``; a black tick at
+  ``paper`` where a bar has the paper's number (e.g. Table 2: plain vs aligned LL per transfer)."""
+  groups = list(dict.fromkeys(b["group"] for b in bars))
+  methods = list(dict.fromkeys(b["method"] for b in bars))
+  width = 0.8 / len(methods)
+  fig, ax = plt.subplots(figsize=(1.1 * len(groups) * len(methods) + 2, 4))
+  for j, m in enumerate(methods):
+    mine = [(groups.index(b["group"]), b) for b in bars if b["method"] == m]
+    x = np.array([i for i, _ in mine]) + (j - (len(methods) - 1) / 2) * width
+    ax.bar(x, [b["mean"] for _, b in mine], width, yerr=[b["std"] for _, b in mine], capsize=3, label=m)
+    for xi, (_, b) in zip(x, mine):
+      if b.get("paper") is not None:
+        ax.plot([xi - width / 2, xi + width / 2], [b["paper"]] * 2, color="k", lw=2)
+  ax.plot([], [], color="k", lw=2, label="paper")
+  ax.set_xticks(range(len(groups)), groups, fontsize=8)
+  ax.set(title=title, ylabel=ylabel)
+  ax.grid(alpha=0.3, axis="y")
+  ax.legend(fontsize=8)
+  return _save(fig, path)
+
+
 def _static_boxes(model: mujoco.MjModel):
   """(corners (4, 2), top height) of every box geom fixed to the world: walls, barriers, slot wall."""
   out = []

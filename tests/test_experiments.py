@@ -39,3 +39,20 @@ def test_fig5_writes_curves_png_and_results(tmp_path, monkeypatch):
   assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
   md = fig5.markdown(saved)
   assert "| zero-shot |" in md and ".17" in md and "hdt reproduce fig5 --preset test" in md
+
+
+def test_bars_plots_matrix_cells_beside_the_paper(tmp_path):
+  from experiments import bars
+  m = tmp_path / "matrix_push1.json"
+  m.write_text(json.dumps({"cells": {"plain|PM": [0.1, 0.02, "success"], "aligned|PM": [0.3, 0.1, "success"]}}))
+  out = tmp_path / "t2"
+  bars.main([f"PM->3Link|plain|0.17={m}#plain|PM", f"PM->3Link|aligned|0.34={m}#aligned|PM", "--out", str(out)])
+  rows = list(csv.DictReader(open(out.with_suffix(".csv"))))
+  assert [(r["method"], float(r["mean"]), float(r["paper"])) for r in rows] == [("plain", 0.1, 0.17), ("aligned", 0.3, 0.34)]
+  assert out.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+  # a bar taken back from the CSV (its eval directory gone) keeps its numbers and source
+  bars.main([f"PM->3Link|aligned|-={out.with_suffix('.csv')}#PM->3Link|aligned", "--out", str(tmp_path / "again")])
+  (row,) = csv.DictReader(open(tmp_path / "again.csv"))
+  assert float(row["mean"]) == 0.3 and row["paper"] == "" and row["source"].endswith("#aligned|PM")
+  with pytest.raises(SystemExit, match="no cell 'x'"):
+    bars.main([f"g|m|-={m}#x", "--out", str(tmp_path / "bad")])
