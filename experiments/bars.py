@@ -4,7 +4,8 @@
       "GROUP|METHOD|PAPER=MATRIX.json#CELL" ...
 
 Each bar is one cell of a matrix JSON that ``hdt eval`` wrote (``CELL`` as in its ``cells``, e.g.
-``plain|PM`` = the LL named plain under the HL named PM), or ``GROUP|METHOD|PAPER=FILE.csv#GROUP|METHOD``
+``plain|PM`` = the LL named plain under the HL named PM), a metric of a one-pair eval JSON
+(``eval_push1.json#success``), or ``GROUP|METHOD|PAPER=FILE.csv#GROUP|METHOD``
 to take a row of a CSV this script wrote before (for an eval whose directory is gone). PAPER is the
 paper's number for that cell (``-`` for none); it is drawn as a black tick on the bar.
 """
@@ -38,10 +39,15 @@ def read_bar(spec: str) -> dict:
       raise SystemExit(f"{path} has no bar {cell!r}")
     mean, std, source = float(rows[0]["mean"]), float(rows[0]["std"]), rows[0]["source"]
   else:
-    cells = json.loads(Path(path).read_text())["cells"]
-    if cell not in cells:
-      raise SystemExit(f"{path} has no cell {cell!r}; it has {sorted(cells)}")
-    mean, std = cells[cell][:2]
+    saved = json.loads(Path(path).read_text())
+    if "cells" in saved:  # a matrix: CELL is "LL|HL"
+      if cell not in saved["cells"]:
+        raise SystemExit(f"{path} has no cell {cell!r}; it has {sorted(saved['cells'])}")
+      mean, std = saved["cells"][cell][:2]
+    elif f"{cell}_mean" in saved:  # one HL over one LL: CELL is the metric
+      mean, std = saved[f"{cell}_mean"], saved[f"{cell}_std"]
+    else:
+      raise SystemExit(f"{path} has no cell or metric {cell!r}")
   return dict(group=group, method=method, mean=mean, std=std, paper=None if paper == "-" else float(paper),
               source=source)
 

@@ -54,5 +54,10 @@ def test_bars_plots_matrix_cells_beside_the_paper(tmp_path):
   bars.main([f"PM->3Link|aligned|-={out.with_suffix('.csv')}#PM->3Link|aligned", "--out", str(tmp_path / "again")])
   (row,) = csv.DictReader(open(tmp_path / "again.csv"))
   assert float(row["mean"]) == 0.3 and row["paper"] == "" and row["source"].endswith("#aligned|PM")
+  one = tmp_path / "eval_push1.json"  # one HL over one LL
+  one.write_text(json.dumps({"success_mean": 0.05, "success_std": 0.07, "per_seed": {}}))
+  bars.main([f"PM->3Link|aligned|0.34={one}#success", "--out", str(tmp_path / "one")])
+  (row,) = csv.DictReader(open(tmp_path / "one.csv"))
+  assert (float(row["mean"]), float(row["std"])) == (0.05, 0.07)
   with pytest.raises(SystemExit, match="no cell 'x'"):
     bars.main([f"g|m|-={m}#x", "--out", str(tmp_path / "bad")])
