@@ -90,7 +90,8 @@ def _add_dataclass_options(p, cls, prefix: str, title: str, note: str):
     default = f.default if f.default is not dataclasses.MISSING else None
     g.add_argument(f"--{prefix}{f.name.replace('_', '-')}", dest=f"{prefix.replace('-', '_')}{f.name}",
                    default=None, metavar=f.name.upper(), **_field_type(f),
-                   help=f"default: from the agent/level and --preset (class default {default})" if prefix == "" else f"(default: {default})")
+                   help=f"default: from the agent/level and --preset (class default {default})" if prefix == ""
+                   else f"default: by A's agent, the paper's table (class default {default})")
 
 
 def _overrides(args, cls, prefix: str) -> dict:
@@ -100,6 +101,11 @@ def _overrides(args, cls, prefix: str) -> dict:
     if v is not None:
       out[f.name] = tuple(v) if isinstance(v, list) else v
   return out
+
+
+def _disc(args, agent_a: str) -> DiscConfig:
+  """The discriminator of an alignment to ``agent_a``: its paper values, then the --disc-* options."""
+  return configs.disc_config(agent_a, **_overrides(args, DiscConfig, "disc_"))
 
 
 def _parse_value(text: str):
@@ -396,7 +402,7 @@ def cmd_align(args) -> int:
   from hdt.transfer.pipeline import check_env_overrides, load_low
   imitate_meta = load_low(args.imitate)[1]  # fails early, with the checkpoint's own message
   check_env_overrides(_key_values(args.set, "--set"), args.agent, "reach")
-  disc = DiscConfig(**_overrides(args, DiscConfig, "disc_"))
+  disc = _disc(args, imitate_meta["agent"])
   cfg = sac_config(args, "low", args.agent)
   out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate_meta['agent'])}")
   res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
@@ -563,9 +569,7 @@ def cmd_sweep(args) -> int:
   if args.level == "finetune":
     from hdt.transfer.finetune import load_high
     load_high(args.high)  # checked to be an HL
-  if args.level == "align":
-    pipeline.load_low(args.imitate)
-  disc = {"disc": DiscConfig(**_overrides(args, DiscConfig, "disc_"))} if args.level == "align" else {}
+  disc = {"disc": _disc(args, pipeline.load_low(args.imitate)[1]["agent"])} if args.level == "align" else {}
   pipeline.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], disc)
   with rundir.claim(root, "sweep", overwrite=args.overwrite):
     rows = _sweep(args, grid, root, seeds, overrides)
@@ -601,7 +605,7 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
                                     mean_only=args.mean_only, reference_params=args.reference_params, **low),
            "align": lambda: dict(agent=args.agent, imitate=args.imitate, n_offline=args.n_offline,
                                  imitate_params=args.imitate_params,
-                                 disc=DiscConfig(**_overrides(args, DiscConfig, "disc_")))}[args.level]()
+                                 disc=_disc(args, pipeline.load_low(args.imitate)[1]["agent"]))}[args.level]()
   # points differing only in learning rates, tau, gamma, reward scale or the plug-in weights train as one
   # vmapped program
   results = pipeline.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)

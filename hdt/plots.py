@@ -78,7 +78,7 @@ def grouped_bars(bars: list[dict], path, title: str = "", ylabel: str = "success
     ax.bar(x, [b["mean"] for _, b in mine], width, yerr=[b["std"] for _, b in mine], capsize=3, label=m)
     for xi, (_, b) in zip(x, mine):
       if b.get("paper") is not None:
-        ax.plot([xi - width / 2, xi + width / 2], [b["paper"]] * 2, color="k", lw=2)
+        ax.plot([xi - 0.4 * width, xi + 0.4 * width], [b["paper"]] * 2, color="k", lw=2)
   ax.plot([], [], color="k", lw=2, label="paper")
   ax.set_xticks(range(len(groups)), groups, fontsize=8)
   ax.set(title=title, ylabel=ylabel)

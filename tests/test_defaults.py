@@ -2,6 +2,7 @@
 refused, the CLI and experiments/ build the same configs, tasks own their metrics, and
 ``hdt reproduce --out`` publishes its table and figures. No training: every test takes seconds."""
 
+import dataclasses
 import json
 
 import jax
@@ -120,6 +121,21 @@ def test_paper_preset_runs_the_authors_sb2_sac_and_the_others_twin_q():
   assert cli._overrides(args, DiscConfig, "disc_") == {"include_z": False}
   with pytest.raises(ValueError, match="include_z='false' must be True or False"):
     DiscConfig(include_z="false")
+
+
+def test_align_discriminator_defaults_come_from_a_in_cli_api_and_experiments():
+  """One place for the discriminator's defaults: the paper's values by A (configs.disc_config), whether the
+  alignment is started from the CLI, the API or experiments/ (the CLI once used the class's nav values)."""
+  from hdt.transfer.align import align_stage
+  parse = lambda *extra: cli.build_parser().parse_args(["align", "--agent", "arm3", "--imitate", "x", *extra])
+  for a, want in (("arm_point", (3e-4, 0.4, "online")), ("arm3", (5e-4, 0.4, "online")), ("point", (2e-4, 0.3, "offline"))):
+    d = cli._disc(parse(), a)
+    assert (d.lr, d.w_init, d.data) == want == (lambda c: (c.lr, c.w_init, c.data))(configs.disc_config(a)), a
+  d = cli._disc(parse("--disc-lr", "1e-3", "--disc-data", "offline"), "arm_point")
+  assert (d.lr, d.w_init, d.data) == (1e-3, 0.4, "offline")  # options override A's values, field by field
+  stage = align_stage("arm3", "zoo:arm_point/low", configs.low_config("arm3", total_env_steps=64, num_envs=4,
+                                                                     steps_per_chunk=16))
+  assert stage.meta["discriminator"] == dataclasses.asdict(configs.disc_config("arm_point"))
 
 
 def test_cli_presets_are_the_configs_table():

@@ -25,14 +25,15 @@ IMITATE_PARAMS = "best"
 
 
 def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
-              disc: DiscConfig = DiscConfig(), seeds=1, out=None, n_offline: int = 20_000,
+              disc: DiscConfig | None = None, seeds=1, out=None, n_offline: int = 20_000,
               backend: str = "auto", quiet: bool = False, imitate_seed: int = 0,
               offline_seed: int = 0, resume=False, save_every=None, overwrite=False,
               imitate_params: str = IMITATE_PARAMS, **env_overrides) -> RunResult:
   """Goal-conditioned LL of ``agent`` aligned to the LL saved in ``imitate`` (agent A).
 
-  A's data (``disc.data``, :mod:`hdt.agents.discriminator`): "offline" (default, as the paper's main
-  results and the authors' README, ``--discrim-online false``) and "online": A's LL runs in A's reach
+  ``disc``: the discriminator; default :func:`hdt.transfer.configs.disc_config` of A's agent (the paper's
+  hyper-parameters by A; offline data for nav, online for manipulation).
+  A's data (``disc.data``, :mod:`hdt.agents.discriminator`): "offline" and "online": A's LL runs in A's reach
   env (episodes of ``disc.expert_time_limit`` steps) alongside each of B's envs (``DiscriminatorEnv``);
   "fixed": ``n_offline`` transitions of A's deterministic LL on uniformly sampled goals
   (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by all seeds.
@@ -48,12 +49,13 @@ def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
 
 
 def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None,
-                disc: DiscConfig = DiscConfig(), n_offline: int = 20_000, backend: str = "auto",
+                disc: DiscConfig | None = None, n_offline: int = 20_000, backend: str = "auto",
                 imitate_seed: int = 0, offline_seed: int = 0, imitate_params: str = IMITATE_PARAMS,
                 **env_overrides) -> Stage:
   """The stage of :func:`align_low`: B's reach env and LL config, the discriminator plug-in against
   A's data, and a card that records A."""
   params_a, meta_a, fn_a = load_low(imitate, imitate_seed, ckpt.check_which(imitate_params, "imitate_params"))
+  disc = configs.disc_config(meta_a["agent"]) if disc is None else disc
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = config or configs.low_config(agent)
   card = PolicyCard.from_env(env, "low", config, env_overrides=env_overrides)

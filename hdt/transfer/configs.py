@@ -168,12 +168,15 @@ def config(level: str, preset: str = "paper", agent: str | None = None, task: st
 
 
 def disc_config(agent_a: str, **overrides):
-  """The paper's discriminator hyper-parameters by A (paper table "discriminator training"): nav PM
-  lr 2e-4 weight 0.3; manipulation PM and 2Link lr 3e-4, 3Link (and 4Link) 5e-4, weight 0.4."""
+  """The discriminator of an alignment to ``agent_a``'s LL: the paper's hyper-parameters by A (paper
+  table "discriminator training": nav PM lr 2e-4 weight 0.3; manipulation PM and 2Link lr 3e-4, 3Link
+  (and 4Link) 5e-4, weight 0.4) and A's data mode: offline for nav (the authors' README command,
+  ``--discrim-online false``), online for manipulation (``DiscriminatorEnv``'s default; the paper's
+  main Table 2 manipulation numbers are its Table 8 "Discrim On" row)."""
   from hdt.agents.discriminator import DiscConfig  # configs stays importable without flax
   spec = agent_spec(agent_a)
   base = {} if spec.family == "nav" else dict(lr=3e-4 if agent_a in ("arm_point", "arm2") else 5e-4,
-                                              w_init=0.4)
+                                              w_init=0.4, data="online")
   return DiscConfig(**(base | overrides))
 
 
