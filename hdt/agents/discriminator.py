@@ -23,7 +23,8 @@ Follows ``bot_transfer/algs/discrim_sac.py`` (class ``DSAC``) and ``bot_transfer
 
 A's data. In both of the authors' modes A's frozen deterministic LL runs in A's reach env alongside
 every B env, and A's rows carry B's relative goal z (``DiscriminatorEnv``, ``DSAC.learn``):
-``"offline"`` (default: the paper's main results, the README's ``--discrim-online false``) starts A,
+``"offline"`` (the class default; the README's Ant command, ``--discrim-online false``; the transfer layer's
+``configs.disc_config`` picks it for nav agents and ``"online"`` for manipulation) starts A,
 at each of B's new goals, on a random goal of its own (``reset(low=True)`` samples a skill), and
 ``"online"`` on B's z (``reset`` then ``set_skill``). In both, when A's own episode ends (its done, or
 ``expert_time_limit`` steps: the README's ``--discrim-time-limit 32``) A restarts from a fresh start of
