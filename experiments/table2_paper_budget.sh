@@ -1,7 +1,7 @@
 # Table 2 (arm rows) at the paper-budget settings as grouped bars: RESULTS.md, "Table 2". Extra bars as arguments.
 E=experiments/results/table2_evals
 PYTHONPATH=. python experiments/bars.py --out experiments/results/table2_paper_budget \
-  --title "Table 2 (arm rows): PM HL / 2Link HL zero-shot over the 3Link LL, 400k env steps, discriminator lr 2e-4, w0 0.3" \
+  --title "Table 2 (arm rows): PM HL / 2Link HL zero-shot over the 3Link LL, 400k env steps (discriminator lr 2e-4, w0 0.3 unless named)" \
   "PM→3Link BP1|plain|0.17=$E/pm_arm3_push1_offline_s8.json#plain|PM" \
   "PM→3Link BP1|aligned, offline (A restarts at LL start)|0.35=$E/pm_arm3_push1_offline_s8.json#aligned|PM" \
   "PM→3Link BP1|aligned, offline (A restarts at HL start)|0.35=$E/pm_arm3_push1_offline_hlstart_s12.json#success" \
@@ -11,4 +11,6 @@ PYTHONPATH=. python experiments/bars.py --out experiments/results/table2_paper_b
   "PM→3Link BP2|aligned, offline (A restarts at LL start)|0.43=$E/pm_push2_500k_matrix_s10.json#3Link400k_alignedPM|PM" \
   "PM→3Link BP2|aligned, offline (A restarts at HL start)|0.43=$E/pm_arm3_push2_offline_hlstart_s12.json#success" \
   "PM→3Link BP1|aligned, online|0.34=$E/pm_arm3_push1_online_s12.json#success" \
-  "PM→3Link BP2|aligned, online|0.43=$E/pm_arm3_push2_online_s12.json#success" "$@"
+  "PM→3Link BP2|aligned, online|0.43=$E/pm_arm3_push2_online_s12.json#success" \
+  "PM→3Link BP1|aligned, online, paper's manip. values (lr 3e-4, w0 0.4)|0.34=$E/pm_arm3_push1_online_papervalues_s12.json#success" \
+  "PM→3Link BP2|aligned, online, paper's manip. values (lr 3e-4, w0 0.4)|0.43=$E/pm_arm3_push2_online_papervalues_s12.json#success" "$@"
