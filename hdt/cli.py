@@ -572,14 +572,14 @@ def cmd_sweep(args) -> int:
   disc = {"disc": _disc(args, pipeline.load_low(args.imitate)[1]["agent"])} if args.level == "align" else {}
   pipeline.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], disc)
   with rundir.claim(root, "sweep", overwrite=args.overwrite):
-    rows = _sweep(args, grid, root, seeds, overrides)
+    rows = _sweep(args, grid, root, seeds, overrides, disc)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
     (root / "sweep.md").write_text(table + "\n")
   print(table)
   return 0
 
 
-def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
+def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc: dict) -> list:
   import numpy as np
   from hdt.envs.tasks import get_task
   from hdt.report import fmt
@@ -604,8 +604,7 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict) -> list:
            "finetune": lambda: dict(high=args.high, task=args.task, anneal_frac=args.anneal_frac, mode=args.mode,
                                     mean_only=args.mean_only, reference_params=args.reference_params, **low),
            "align": lambda: dict(agent=args.agent, imitate=args.imitate, n_offline=args.n_offline,
-                                 imitate_params=args.imitate_params,
-                                 disc=_disc(args, pipeline.load_low(args.imitate)[1]["agent"]))}[args.level]()
+                                 imitate_params=args.imitate_params, **disc)}[args.level]()
   # points differing only in learning rates, tau, gamma, reward scale or the plug-in weights train as one
   # vmapped program
   results = pipeline.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)

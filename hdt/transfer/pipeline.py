@@ -70,9 +70,8 @@ def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, ba
   backend: the physics backend ("auto", "mjx", "native"); seeds, out, quiet, resume, save_every,
   overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
   if imitate is not None:
-    kw = {} if disc is None else {"disc": disc}
-    return align_low(agent, imitate, config, seeds=seeds, out=out, backend=backend, quiet=quiet,
-                     resume=resume, save_every=save_every, overwrite=overwrite, **kw, **env_overrides)
+    return align_low(agent, imitate, config, disc=disc, seeds=seeds, out=out, backend=backend, quiet=quiet,
+                     resume=resume, save_every=save_every, overwrite=overwrite, **env_overrides)
   options = RunOptions(seeds, out, quiet, resume, save_every, overwrite)
   return run_stage(low_stage(agent, config, backend, **env_overrides), options)
 
