@@ -31,6 +31,7 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
                                                                                 tmp_path, monkeypatch):
   import json
   import shutil
+  from pathlib import Path
 
   import orbax.checkpoint as ocp
 
@@ -40,14 +41,33 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   high = point_high.run_dir if hasattr(point_high, "run_dir") else point_high
   zoo.export(run, "t/low", "test", episodes=4)
   zoo.export(high, "t/high", "test", low="zoo:t/low", episodes=4)
-  for sub in ("params", "best/params"):
-    p = tmp_path / "zoo/t/low/seed_0" / sub
-    if p.is_dir():
-      assert set(ocp.PyTreeCheckpointer().restore(p.resolve())) <= set(zoo.LL_KEEP), sub
-  # the slim LL evaluates as the full one did, and the HL trained over the full LL composes with it
-  full = ev.evaluate(ev.load_policy(run), episodes=4, key=3)
-  slim = ev.evaluate(ev.load_policy("zoo:t/low"), episodes=4, key=3)
-  assert full["per_seed"]["return"].tolist() == slim["per_seed"]["return"].tolist()
+  keys = lambda sub: set(ocp.PyTreeCheckpointer().restore((tmp_path / "zoo" / sub).resolve()))
+  # the LL keeps its best policy only; the HL its whole final SAC and its best policy (the KL reference)
+  assert not (tmp_path / "zoo/t/low/seed_0/params").exists()
+  assert keys("t/low/seed_0/best/params") <= set(zoo.LL_KEEP)
+  assert {"policy", "q", "target_q"} <= keys("t/high/seed_0/params")
+  assert keys("t/high/seed_0/best/params") <= set(zoo.BEST_KEEP)
+  # the slim LL evaluates as the full one's best parameters did, whichever set is asked for, and says
+  # so; the HL trained over the full LL composes with it
+  full = ev.evaluate(ev.load_policy(run, "best"), episodes=4, key=3)
+  for which in ("final", "best"):
+    pol = ev.load_policy("zoo:t/low", which)
+    assert pol.meta["params"] == "best"
+    assert full["per_seed"]["return"].tolist() == ev.evaluate(pol, episodes=4, key=3)["per_seed"]["return"].tolist()
+  ev.compose("zoo:t/high", "zoo:t/low")
+  # an entry exported before the LL's final parameters were dropped is slimmed in place, remembers the
+  # hash it had, and still composes
+  final = ocp.PyTreeCheckpointer().restore((Path(run) / "seed_0/params").resolve())
+  ocp.PyTreeCheckpointer().save((tmp_path / "zoo/t/low/seed_0/params").resolve(),
+                                {k: v for k, v in final.items() if k in zoo.LL_KEEP})
+  old_hash = ckpt.content_hash("zoo:t/low", 0)
+  info = json.loads((tmp_path / "zoo/t/low/zoo.json").read_text())
+  info["slim"][0]["sha256"] = old_hash
+  (tmp_path / "zoo/t/low/zoo.json").write_text(json.dumps(info))
+  slim = zoo.reslim("t/low")["slim"][0]
+  assert not (tmp_path / "zoo/t/low/seed_0/params").exists()
+  assert slim["sha256"] == ckpt.content_hash("zoo:t/low", 0) and slim["earlier_sha256"] == [old_hash]
+  assert slim["source_sha256"] == info["slim"][0]["source_sha256"]
   ev.compose("zoo:t/high", "zoo:t/low")
   for name in ("t/low", "t/high"):
     assert not zoo.within_noise(*zoo.recheck(name))
@@ -57,7 +77,7 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   assert after["reevaluated"][0]["previous"]["evaluation"] == before["evaluation"] and after["command"] == "test"
   assert not zoo.within_noise(*zoo.recheck("t/high"))
   # a broken LL checkpoint (its first layer shuffled) is outside noise; its changed files are refused
-  d = tmp_path / "zoo/t/low/seed_0/params"
+  d = tmp_path / "zoo/t/low/seed_0/best/params"
   params = ocp.PyTreeCheckpointer().restore(d.resolve())
   k = params["policy"]["params"]["mlp"]["hidden_0"]["kernel"]
   params["policy"]["params"]["mlp"]["hidden_0"]["kernel"] = k[:, ::-1] * 3.0
@@ -68,3 +88,13 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   assert zoo.within_noise(*zoo.recheck("t/low"))
   with pytest.raises(ckpt.CheckpointError, match="changed after the HL"):
     ev.compose("zoo:t/high", "zoo:t/low")
+
+
+def test_committed_zoo_stays_a_few_megabytes():
+  """The zoo is committed: it keeps what is loaded from it (zoo.py) and no more."""
+  size = sum(p.stat().st_size for p in zoo.ZOO_DIR.rglob("*") if p.is_file())
+  assert size < 7e6, f"zoo/ holds {size / 1e6:.1f} MB; export policies only (zoo.export slims them)"
+  for info in zoo.entries():
+    if info["level"] == "low":  # one set per seed: the best, or the final of an LL that kept no best
+      for seed in (zoo.ZOO_DIR / info["name"]).glob("seed_*"):
+        assert (seed / "params").is_dir() != (seed / "best/params").is_dir(), f"{seed} keeps both"

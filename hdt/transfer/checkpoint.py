@@ -2,8 +2,8 @@
 
 A run directory holds ``config.json``, ``meta.json``, ``metrics.csv`` and one sub-directory per seed
 (``seed_0``, ``seed_1``, ...), each with ``params/`` (orbax, the final parameters), ``best/params/``
-(those of the best periodic evaluation; ``meta["best"]`` says which env step and return) and its
-own ``meta.json``, and
+(those of the best periodic evaluation; ``meta["best"]`` says which env step and return; a zoo LL
+keeps only these) and its own ``meta.json``, and
 ``state/``: the resumable training state (``arrays/`` orbax, ``state.json``). A normalised run's
 observation statistics are saved beside the parameters (``params["obs_norm"]`` next to "policy" and
 "q"); checkpoints written when they lived inside the policy and critics are split on load. Each of these
@@ -222,13 +222,17 @@ def check_which(which: str, what: str = "which") -> str:
 def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tuple[Any, dict]:
   """Returns (params, meta) of one seed: its final parameters, or with ``which="best"`` those of
   its best periodic evaluation. As the authors' loader, "best" falls back to the final parameters
-  of a checkpoint that has none; ``meta["params"]`` says which were loaded and
-  ``meta["params_env_steps"]`` after how many env steps."""
+  of a checkpoint that has none; a zoo entry keeps one of the two (zoo.py), which either name then
+  loads. ``meta["params"]`` says which were loaded and ``meta["params_env_steps"]`` after how many
+  env steps."""
   run_dir = zoo_path(run_dir)
   check_which(which)
   meta = load_meta(run_dir, seed_index)
   d = _resolve_seed_dir(Path(run_dir).resolve(), seed_index)
-  use = "best" if which == "best" and isinstance(meta.get("best"), dict) else "final"
+  has_best = isinstance(meta.get("best"), dict)
+  use = "best" if which == "best" and has_best else "final"
+  if use == "final" and has_best and not (d / "params").exists() and (Path(run_dir) / "zoo.json").is_file():
+    use = "best"  # a zoo LL keeps only the parameters HLs compose with
   path = d / "params" if use == "final" else d / "best" / "params"
   try:
     params = ocp.PyTreeCheckpointer().restore(path)

@@ -4,9 +4,11 @@ directory is accepted (``hdt eval --high zoo:arm_point/push1 --low zoo:arm_point
 An entry is a policy-only copy of a run directory (``meta.json``, ``config.json``, ``seed_*/``; no
 resumable ``state/``) plus ``zoo.json``: the command that trained it, its budget, its evaluation numbers
 and a small deterministic re-evaluation (``check``) that tests replay within noise (:func:`within_noise`:
-float differences between CPUs can flip a contact-rich episode). An LL entry keeps only its
-policies (final and best) and their observation statistics: nothing loads an LL's critics. An HL entry
-keeps its whole final SAC, which KL finetuning starts from (the authors' finetune_high_level_kl.py).
+float differences between CPUs can flip a contact-rich episode). An LL entry keeps only the policy
+(and observation statistics) of its best periodic evaluation: what HLs compose with and alignment
+imitates (nothing loads an LL's critics; ``hdt eval --policy`` of a zoo LL loads these too). An HL
+entry keeps its whole final SAC, which KL finetuning starts from (the authors'
+finetune_high_level_kl.py), and the policy of its best evaluation, which the KL ties to.
 """
 
 from __future__ import annotations
@@ -98,7 +100,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
       if isinstance(m.get("low"), dict):
         m["low"]["path"] = low
         mp.write_text(json.dumps(m, indent=1))
-  slimmed = _slim(tmp) if meta.get("level") == "low" else None
+  slimmed = _slim(tmp, meta["level"])
   tmp_name = str(tmp.relative_to(ZOO_DIR))
   (tmp / "zoo.json").write_text("{}")  # so that zoo:<tmp> resolves during the evaluations below
   try:
@@ -110,38 +112,66 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   return dest
 
 
-LL_KEEP = ("policy", normalizer.KEY)  # what an LL entry keeps of each seed's parameters
+LL_KEEP = ("policy", normalizer.KEY)  # what an LL entry keeps of its best parameters
+BEST_KEEP = ("policy", normalizer.KEY)  # what an HL entry keeps of its best (the KL reference)
 
 
-def _slim(entry: Path) -> list[dict]:
-  """Drops all but ``LL_KEEP`` from every seed's final and best parameters of the LL copy ``entry``
-  (in place). Returns per seed the content hash before and after, so that an HL trained over the
-  full LL still composes with the slim copy (:func:`hash_aliases`)."""
+def _slim(entry: Path, level: str) -> list[dict]:
+  """Drops from the copy ``entry`` (in place) what nothing loads from a zoo entry: an LL's final
+  parameters when it has best ones, and all but ``LL_KEEP`` / ``BEST_KEEP`` of the rest. Returns per
+  seed the content hash before and after, so that an HL trained over the full LL still composes with
+  the slim copy (:func:`hash_aliases`)."""
   from hdt.transfer import checkpoint as ckpt  # it reads zoo names through resolve()
   out = []
   for seed in ckpt.list_seeds(entry):
     before = ckpt.content_hash(entry, seed)
     d = ckpt.seed_dir(entry, seed)
-    for path in (d / "params", d / "best" / "params"):
-      if path.is_dir():
+    best = d / "best" / "params"
+    if level == "low" and best.is_dir() and (d / "params").is_dir():
+      shutil.rmtree(d / "params")
+    for path, keep in ((d / "params", LL_KEEP if level == "low" else None), (best, LL_KEEP if level == "low" else BEST_KEEP)):
+      if keep and path.is_dir():
         params = ocp.PyTreeCheckpointer().restore(path.resolve())
-        keep = {k: v for k, v in params.items() if k in LL_KEEP}
+        if set(params) <= set(keep):
+          continue
         new = path.with_name(path.name + ".slim")
-        ocp.PyTreeCheckpointer().save(new.resolve(), keep)
+        ocp.PyTreeCheckpointer().save(new.resolve(), {k: v for k, v in params.items() if k in keep})
         shutil.rmtree(path)
         new.rename(path)
     out.append({"seed": seed, "source_sha256": before, "sha256": ckpt.content_hash(entry, seed)})
   return out
 
 
+def reslim(name: str) -> dict:
+  """Applies today's :func:`_slim` to an entry exported before it (in place), keeping the hashes its
+  LL had, so HLs trained over any earlier copy still compose with it. Returns the new zoo.json; an LL
+  entry's numbers must then be re-recorded (:func:`reevaluate`), as its default parameters changed."""
+  from hdt.transfer import checkpoint as ckpt
+  entry, path = ZOO_DIR / name, ZOO_DIR / name / "zoo.json"
+  info = json.loads(path.read_text())
+  old = {s["seed"]: s for s in info.get("slim") or []}
+  new = _slim(entry, info["level"])
+  if info["level"] == "low":
+    for s in new:
+      prev = old.get(s["seed"], {})
+      earlier = [*prev.get("earlier_sha256", []), s["source_sha256"]]
+      s["source_sha256"] = prev.get("source_sha256", s["source_sha256"])
+      s["earlier_sha256"] = sorted(set(earlier) - {s["source_sha256"], s["sha256"]})
+    info["slim"] = new
+  ckpt.write_json_atomic(path, info)
+  return info
+
+
 def hash_aliases(low, seed: int) -> set[str]:
   """Content hashes that name seed ``seed`` of the LL ``low`` as it is now: its own, plus, for a slim
-  zoo entry whose files are unchanged since export, that of the full run it was exported from."""
+  zoo entry whose files are unchanged since it was slimmed, that of the full run it was exported from
+  and of its earlier zoo copies (:func:`reslim`)."""
   from hdt.transfer import checkpoint as ckpt
   now = ckpt.content_hash(low, seed)
   d = resolve(str(low))
   info = json.loads((Path(d) / "zoo.json").read_text()) if str(low).startswith(PREFIX) else {}
-  return {now} | {s["source_sha256"] for s in info.get("slim") or [] if s["seed"] == seed and s["sha256"] == now}
+  return {now} | {h for s in info.get("slim") or [] if s["seed"] == seed and s["sha256"] == now
+                  for h in [s["source_sha256"], *s.get("earlier_sha256", [])]}
 
 
 def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check, slimmed=None):
@@ -152,7 +182,7 @@ def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check
                           unit="HL decisions" if meta["level"] == "high" else "env steps"),
               seeds=meta.get("seeds"), evaluation=full, check=check,
               hdt_version=hdt.__version__, exported=datetime.date.today().isoformat())
-  if slimmed is not None:
+  if meta["level"] == "low":
     info["slim"] = slimmed
   (tmp / "zoo.json").write_text(json.dumps(info, indent=1))
   if dest.exists():
