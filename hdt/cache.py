@@ -15,6 +15,7 @@ import jax
 import jaxlib
 import mujoco
 from jax.experimental import serialize_executable
+from jax.experimental.compilation_cache import compilation_cache as cc
 
 
 def cache_dir() -> Path:
@@ -43,9 +44,6 @@ def code_version() -> str:
   return h.hexdigest()
 
 
-_LOADED: dict[str, str] = {}  # the one group of programs this process loaded from disk
-
-
 def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
   """``jitted`` (a ``jax.jit`` function) compiled ahead of time, loaded from ``cache_dir()/aot``
   when a program was saved under ``key`` (which must name everything the program depends on besides
@@ -55,29 +53,37 @@ def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
   while the persistent compile cache is on (:func:`enable_compile_cache`, as the CLI does); else
   returns ``jitted`` itself.
 
-  Opt-in (``HDT_AOT_CACHE=1``): on XLA:CPU a loaded program can fail at run time ("Function
-  wrapped_slice not found") once the process holds other compiled programs with kernels of the same
-  name, e.g. in the test suite or a CLI run with a warm cache; without it the persistent compile
-  cache still skips XLA compilation."""
-  if not jax.config.jax_compilation_cache_dir or os.environ.get("HDT_AOT_CACHE") != "1":
+  ``HDT_AOT_CACHE=0`` turns this off (the persistent compile cache still skips XLA compilation)."""
+  if not jax.config.jax_compilation_cache_dir or os.environ.get("HDT_AOT_CACHE") == "0":
     return jitted
   path = cache_dir() / "aot" / f"{hashlib.sha256((key + code_version()).encode()).hexdigest()[:32]}.pkl"
-  group = key.rsplit("|", 1)[0]
-  # XLA:CPU resolves a deserialised program's kernels by name in one process-wide table: programs of a
-  # second loaded group then fail at run time ("Function wrapped_slice not found"). So one group per
-  # process is loaded; the others compile as usual (and the persistent compile cache still helps).
-  if path.exists() and _LOADED.setdefault("group", group) == group:
+  if path.exists():
     try:
       with open(path, "rb") as f:
         return serialize_executable.deserialize_and_load(*pickle.load(f))
     except Exception:  # noqa: BLE001 - damaged or stale file: compile afresh and replace it
       pass
   lowered = jitted.lower(*abstract_args())
-  program = lowered.compile()
-  if "callback" not in lowered.as_text():
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "wb") as f:
-      pickle.dump(serialize_executable.serialize(program), f)
-    os.replace(tmp, path)  # atomic: a concurrent run never reads half a file
+  if "callback" in lowered.as_text():
+    return lowered.compile()
+  program = _compile_fresh(lowered)
+  path.parent.mkdir(parents=True, exist_ok=True)
+  fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+  with os.fdopen(fd, "wb") as f:
+    pickle.dump(serialize_executable.serialize(program), f)
+  os.replace(tmp, path)  # atomic: a concurrent run never reads half a file
   return program
+
+
+def _compile_fresh(lowered):
+  """``lowered`` compiled by XLA, never taken from the persistent compile cache: XLA:CPU re-serialises
+  an executable it loaded from that cache without its kernels, so a program saved from a cache hit
+  failed at run time in the next process ("Function wrapped_slice not found")."""
+  enabled = jax.config.jax_enable_compilation_cache
+  jax.config.update("jax_enable_compilation_cache", False)
+  cc.reset_cache()  # the cache memoises whether it is on
+  try:
+    return lowered.compile()
+  finally:
+    jax.config.update("jax_enable_compilation_cache", enabled)
+    cc.reset_cache()

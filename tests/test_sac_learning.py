@@ -244,6 +244,7 @@ class Counted(PointGoal):
     traces.append(1)  # Python runs only while tracing
     return super().step(state, action)
 hdt.cache.enable_compile_cache({jax_dir!r})
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)  # the toy programs compile fast
 env = Counted()
 cfg = SACConfig(hidden_sizes=(32, 32), batch_size=32, buffer_size=2000, num_envs=2, learning_starts=50,
                 total_env_steps=1000, steps_per_chunk=250, num_eval_episodes=2)
@@ -258,25 +259,28 @@ print("HISTORY", histories)
 
 
 def test_cached_programs_load_without_tracing(tmp_path):
-  """With the compile cache on and a cache_key, run() saves its compiled programs; a second process
-  with the same key loads them (the env is not traced again) and trains identically. A process loads
-  one group of programs (XLA:CPU resolves loaded kernels in one process-wide table, so a second loaded
-  group would fail at run time): the second key compiles afresh there, and still runs."""
+  """With the compile cache on and a cache_key, run() saves its compiled programs; a later process
+  with the same key loads them (the env is not traced again) and trains identically, for two groups
+  of programs in one process. The programs are saved after a first process filled the persistent
+  compile cache: one re-serialised from a cache hit lacked its kernels on XLA:CPU and failed at run
+  time ("Function wrapped_slice not found"), so saved programs are compiled afresh."""
   import os
   import subprocess
   import sys
   script = _CACHE_SCRIPT.format(tests=os.path.dirname(__file__), jax_dir=str(tmp_path / "jax"))
-  env = dict(os.environ, HDT_CACHE_DIR=str(tmp_path), HDT_AOT_CACHE="1")
 
-  def proc():
+  def proc(aot):
+    env = dict(os.environ, HDT_CACHE_DIR=str(tmp_path), HDT_AOT_CACHE=aot)
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.splitlines()
     return lines[:2], next(line for line in lines if line.startswith("HISTORY"))
 
-  cold, h_cold = proc()
+  plain, h_plain = proc("0")  # fills the persistent compile cache only
+  assert plain == ["toy point goal traced", "another env traced"] and not (tmp_path / "aot").exists()
+  cold, h_cold = proc("1")
   assert cold == ["toy point goal traced", "another env traced"]
   assert len(list((tmp_path / "aot").glob("*.pkl"))) == 6  # init, run_chunk, evaluate per key
-  warm, h_warm = proc()
-  assert warm == ["toy point goal loaded", "another env traced"]
-  assert h_warm == h_cold  # loaded programs train identically
+  warm, h_warm = proc("1")
+  assert warm == ["toy point goal loaded", "another env loaded"]
+  assert h_warm == h_cold == h_plain  # loaded programs train identically
