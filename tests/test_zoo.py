@@ -98,3 +98,9 @@ def test_committed_zoo_stays_a_few_megabytes():
     if info["level"] == "low":  # one set per seed: the best, or the final of an LL that kept no best
       for seed in (zoo.ZOO_DIR / info["name"]).glob("seed_*"):
         assert (seed / "params").is_dir() != (seed / "best/params").is_dir(), f"{seed} keeps both"
+
+
+def test_zoo_table_lists_every_entry_with_the_parameters_its_numbers_are_of():
+  rows = [r.split(" | ") for r in zoo.table().splitlines()[2:]]
+  assert [r[0] for r in rows] == zoo.names()
+  assert {r[5] for r in rows if r[1] == "low"} <= {"best", "final"} and {r[5] for r in rows if r[1] == "high"} == {"final"}

@@ -238,12 +238,15 @@ def within_noise(recorded: dict, fresh: dict, z: float = 4.0) -> list[str]:
 
 
 def table() -> str:
-  """One line per entry: name, level, agent/task, budget, headline numbers (mean ± std over seeds)."""
-  rows = ["name | level | agent | task | budget | return | success | seeds", "---|---|---|---|---|---|---|---"]
+  """One line per entry: name, level, agent/task, budget, the parameters its numbers are of (an HL's:
+  over its LL's best), headline numbers (mean ± std over seeds)."""
+  rows = ["name | level | agent | task | budget | params | return | success | seeds",
+          "---|---|---|---|---|---|---|---|---"]
   for e in entries():
     ev = e["evaluation"]
     succ = f"{ev['success_mean']:.2f} ± {ev['success_std']:.2f}" if "success_mean" in ev else "-"
     rows.append(f"{e['name']} | {e['level']} | {e['agent']} | {e['task']} | {e['budget']['total']} "
-                f"{e['budget']['unit']} | {ev['return_mean']:.4g} ± {ev['return_std']:.2g} | {succ} | "
+                f"{e['budget']['unit']} | {ev.get('params', '?')} | {ev['return_mean']:.4g} ± {ev['return_std']:.2g} | "
+                f"{succ} | "
                 f"{len(e['seeds'] or [])}")
   return "\n".join(rows)
