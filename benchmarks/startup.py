@@ -65,7 +65,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
       for lib in glob.glob(str(cache_dir() / "native_ffi-*.so")):
         shutil.copy(lib, tmp)
-      env = dict(os.environ, HDT_CACHE_DIR=tmp)  # loaded programs on a warm start (hdt.cache.compiled)
+      env = dict(os.environ, HDT_CACHE_DIR=tmp, HDT_AOT_CACHE="1")  # the opt-in loaded programs (hdt.cache.compiled)
       env.pop("JAX_COMPILATION_CACHE_DIR", None)
       for i in range(1 + args.warm):
         out = subprocess.run([sys.executable, __file__, "--child", agent], env=env, capture_output=True,

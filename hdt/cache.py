@@ -53,8 +53,10 @@ def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
   while the persistent compile cache is on (:func:`enable_compile_cache`, as the CLI does); else
   returns ``jitted`` itself.
 
-  ``HDT_AOT_CACHE=0`` turns this off (the persistent compile cache still skips XLA compilation)."""
-  if not jax.config.jax_compilation_cache_dir or os.environ.get("HDT_AOT_CACHE") == "0":
+  Opt-in (``HDT_AOT_CACHE=1``): programs are keyed by :func:`code_version`, so after any edit of hdt's
+  sources every saved program is compiled afresh, past the persistent compile cache (see
+  :func:`_compile_fresh`), which keys by the lowered program and would have skipped most of them."""
+  if not jax.config.jax_compilation_cache_dir or os.environ.get("HDT_AOT_CACHE") != "1":
     return jitted
   path = cache_dir() / "aot" / f"{hashlib.sha256((key + code_version()).encode()).hexdigest()[:32]}.pkl"
   if path.exists():

@@ -44,9 +44,9 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   keys = lambda sub: set(ocp.PyTreeCheckpointer().restore((tmp_path / "zoo" / sub).resolve()))
   # the LL keeps its best policy only; the HL its whole final SAC and its best policy (the KL reference)
   assert not (tmp_path / "zoo/t/low/seed_0/params").exists()
-  assert keys("t/low/seed_0/best/params") <= set(zoo.LL_KEEP)
+  assert keys("t/low/seed_0/best/params") <= set(zoo.POLICY_KEYS)
   assert {"policy", "q", "target_q"} <= keys("t/high/seed_0/params")
-  assert keys("t/high/seed_0/best/params") <= set(zoo.BEST_KEEP)
+  assert keys("t/high/seed_0/best/params") <= set(zoo.POLICY_KEYS)
   # the slim LL evaluates as the full one's best parameters did, whichever set is asked for, and says
   # so; the HL trained over the full LL composes with it
   full = ev.evaluate(ev.load_policy(run, "best"), episodes=4, key=3)
@@ -59,7 +59,7 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   # hash it had, and still composes
   final = ocp.PyTreeCheckpointer().restore((Path(run) / "seed_0/params").resolve())
   ocp.PyTreeCheckpointer().save((tmp_path / "zoo/t/low/seed_0/params").resolve(),
-                                {k: v for k, v in final.items() if k in zoo.LL_KEEP})
+                                {k: v for k, v in final.items() if k in zoo.POLICY_KEYS})
   old_hash = ckpt.content_hash("zoo:t/low", 0)
   info = json.loads((tmp_path / "zoo/t/low/zoo.json").read_text())
   info["slim"][0]["sha256"] = old_hash

@@ -112,13 +112,12 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   return dest
 
 
-LL_KEEP = ("policy", normalizer.KEY)  # what an LL entry keeps of its best parameters
-BEST_KEEP = ("policy", normalizer.KEY)  # what an HL entry keeps of its best (the KL reference)
+POLICY_KEYS = ("policy", normalizer.KEY)  # what an LL entry keeps, and an HL entry of its best (the KL reference)
 
 
 def _slim(entry: Path, level: str) -> list[dict]:
   """Drops from the copy ``entry`` (in place) what nothing loads from a zoo entry: an LL's final
-  parameters when it has best ones, and all but ``LL_KEEP`` / ``BEST_KEEP`` of the rest. Returns per
+  parameters when it has best ones, and all but ``POLICY_KEYS`` of an LL's and of any best. Returns per
   seed the content hash before and after, so that an HL trained over the full LL still composes with
   the slim copy (:func:`hash_aliases`)."""
   from hdt.transfer import checkpoint as ckpt  # it reads zoo names through resolve()
@@ -129,13 +128,13 @@ def _slim(entry: Path, level: str) -> list[dict]:
     best = d / "best" / "params"
     if level == "low" and best.is_dir() and (d / "params").is_dir():
       shutil.rmtree(d / "params")
-    for path, keep in ((d / "params", LL_KEEP if level == "low" else None), (best, LL_KEEP if level == "low" else BEST_KEEP)):
-      if keep and path.is_dir():
+    for path in (d / "params", best):
+      if path.is_dir() and (level == "low" or path == best):
         params = ocp.PyTreeCheckpointer().restore(path.resolve())
-        if set(params) <= set(keep):
+        if set(params) <= set(POLICY_KEYS):
           continue
         new = path.with_name(path.name + ".slim")
-        ocp.PyTreeCheckpointer().save(new.resolve(), {k: v for k, v in params.items() if k in keep})
+        ocp.PyTreeCheckpointer().save(new.resolve(), {k: v for k, v in params.items() if k in POLICY_KEYS})
         shutil.rmtree(path)
         new.rename(path)
     out.append({"seed": seed, "source_sha256": before, "sha256": ckpt.content_hash(entry, seed)})
