@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import argparse
 import csv
-import io
 import json
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from experiments.common import write_text_atomic  # noqa: E402
+from experiments.common import write_csv_atomic  # noqa: E402
 from hdt import plots  # noqa: E402
 
 FIELDS = ("group", "method", "mean", "std", "paper", "source")
@@ -63,11 +62,7 @@ def main(argv=None):
   args = p.parse_args(argv)
   bars = [read_bar(s) for s in args.bars]
   out = Path(args.out)
-  text = io.StringIO()
-  w = csv.DictWriter(text, FIELDS)
-  w.writeheader()
-  w.writerows({k: ("" if b[k] is None else b[k]) for k in FIELDS} for b in bars)
-  write_text_atomic(out.with_suffix(".csv"), text.getvalue())
+  write_csv_atomic(out.with_suffix(".csv"), FIELDS, ({k: ("" if b[k] is None else b[k]) for k in FIELDS} for b in bars))
   png = plots.grouped_bars(bars, out.with_suffix(".png"), title=args.title, ylabel=args.ylabel)
   print(f"wrote {png} and {out.with_suffix('.csv')}")
 

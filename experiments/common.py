@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import dataclasses
 import json
 import os
@@ -173,6 +174,15 @@ def write_text_atomic(path: Path, text: str) -> None:
   with os.fdopen(fd, "w") as f:
     f.write(text)
   os.replace(tmp, path)
+
+
+def write_csv_atomic(path: Path, fieldnames, rows) -> None:
+  """``rows`` (dicts) as a CSV with header ``fieldnames``, written atomically."""
+  text = io.StringIO()
+  w = csv.DictWriter(text, fieldnames=list(fieldnames))
+  w.writeheader()
+  w.writerows(rows)
+  write_text_atomic(path, text.getvalue())
 
 
 def write_result(name: str, preset: str, result: dict) -> Path:

@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from experiments.common import write_text_atomic  # noqa: E402
+from experiments.common import write_csv_atomic  # noqa: E402
 from hdt import plots  # noqa: E402
 from hdt.transfer import checkpoint as ckpt  # noqa: E402
 from hdt.transfer import evaluate as ev  # noqa: E402
@@ -27,10 +27,10 @@ from hdt.transfer import evaluate as ev  # noqa: E402
 
 def cross(high: str, low: str, task: str, episodes: int) -> np.ndarray:
   """success[h, l] of HL seed h over LL seed l."""
-  hp, _ = ckpt.load_all(high, "final")
-  lp, _ = ckpt.load_all(low, ev.LOW_PARAMS)
+  hp, hmetas = ckpt.load_all(high, "final")
+  lp, lmetas = ckpt.load_all(low, ev.LOW_PARAMS)
   base = ev.compose(high, low)  # checks the pair and builds the cards
-  nh, nl = len(jax.tree.leaves(hp["policy"])[0]), len(jax.tree.leaves(lp["policy"])[0])
+  nh, nl = len(hmetas), len(lmetas)
   take = lambda tree, idx: None if tree is None else jax.tree.map(lambda x: x[idx], tree)
   out = np.full((nh, nl), np.nan)
   for s in range(nl):
@@ -52,11 +52,12 @@ def main(argv=None):
   p.add_argument("--episodes", type=int, default=100)
   p.add_argument("--out", required=True, help="output path without extension (.csv and _NAME.png are written)")
   args = p.parse_args(argv)
-  rows = ["low,hl_seed,ll_seed,success"]
+  rows = []
   for spec in args.low:
     name, _, run = spec.partition("=")
     m = cross(args.high, run, args.task, args.episodes)
-    rows += [f"{name},{h},{l},{m[h, l]:.4f}" for h in range(m.shape[0]) for l in range(m.shape[1])]
+    rows += [dict(low=name, hl_seed=h, ll_seed=l, success=f"{m[h, l]:.4f}") for h in range(m.shape[0])
+             for l in range(m.shape[1])]
     cells = {(f"LL seed {l}", f"HL seed {h}"): (m[h, l], 0.0, "success") for h in range(m.shape[0])
              for l in range(m.shape[1])}
     plots.heatmap(dict(rows=[f"LL seed {l}" for l in range(m.shape[1])], cols=[f"HL seed {h}" for h in range(m.shape[0])],
@@ -64,7 +65,7 @@ def main(argv=None):
                   title=f"{args.task}: HL {args.high} over LL {name} ({run}), success per seed pair")
     print(f"{name}: mean {np.mean(m):.3f}; per LL seed {np.round(m.mean(0), 3).tolist()}; "
           f"per HL seed {np.round(m.mean(1), 3).tolist()}", flush=True)
-  write_text_atomic(Path(args.out + ".csv"), "\n".join(rows) + "\n")
+  write_csv_atomic(Path(args.out + ".csv"), ("low", "hl_seed", "ll_seed", "success"), rows)
 
 
 if __name__ == "__main__":

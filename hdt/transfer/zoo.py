@@ -246,6 +246,5 @@ def table() -> str:
     succ = f"{ev['success_mean']:.2f} ± {ev['success_std']:.2f}" if "success_mean" in ev else "-"
     rows.append(f"{e['name']} | {e['level']} | {e['agent']} | {e['task']} | {e['budget']['total']} "
                 f"{e['budget']['unit']} | {ev.get('params', '?')} | {ev['return_mean']:.4g} ± {ev['return_std']:.2g} | "
-                f"{succ} | "
-                f"{len(e['seeds'] or [])}")
+                f"{succ} | {len(e['seeds'] or [])}")
   return "\n".join(rows)
