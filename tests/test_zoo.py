@@ -104,3 +104,42 @@ def test_zoo_table_lists_every_entry_with_the_parameters_its_numbers_are_of():
   rows = [r.split(" | ") for r in zoo.table().splitlines()[2:]]
   assert [r[0] for r in rows] == zoo.names()
   assert {r[5] for r in rows if r[1] == "low"} <= {"best", "final"} and {r[5] for r in rows if r[1] == "high"} == {"final"}
+
+
+def test_an_hl_run_started_over_an_older_zoo_copy_resumes_after_the_entry_is_slimmed(point_low, tmp_path,
+                                                                                     monkeypatch):
+  import json
+  import shutil
+  from pathlib import Path
+
+  import orbax.checkpoint as ocp
+
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import configs
+  from hdt.transfer.pipeline import train_high
+  monkeypatch.setattr(zoo, "ZOO_DIR", tmp_path / "zoo")
+  run = point_low.run_dir if hasattr(point_low, "run_dir") else point_low
+  zoo.export(run, "t/low", "test", episodes=4)
+  # the copy as exported before LLs dropped their final parameters
+  final = ocp.PyTreeCheckpointer().restore((Path(run) / "seed_0/params").resolve())
+  ocp.PyTreeCheckpointer().save((tmp_path / "zoo/t/low/seed_0/params").resolve(),
+                                {k: v for k, v in final.items() if k in zoo.POLICY_KEYS})
+  info = json.loads((tmp_path / "zoo/t/low/zoo.json").read_text())
+  info["slim"][0]["sha256"] = ckpt.content_hash("zoo:t/low", 0)
+  (tmp_path / "zoo/t/low/zoo.json").write_text(json.dumps(info))
+  steps = 256
+  cfg = lambda total: configs.high_config("waypoint", total_env_steps=total, num_envs=8, updates_per_step=8,
+                                          steps_per_chunk=steps // 8, num_eval_episodes=4)
+  high = tmp_path / "high"
+  train_high("waypoint", "zoo:t/low", cfg(steps), seeds=1, out=high, quiet=True, save_every=steps)
+  zoo.reslim("t/low")
+  res = train_high("waypoint", "zoo:t/low", cfg(2 * steps), seeds=1, out=high, quiet=True, resume=True)
+  assert int(np.max(res.history["env_steps"])) == 2 * steps
+  # a real change of the LL is still refused
+  d = tmp_path / "zoo/t/low/seed_0/best/params"
+  params = ocp.PyTreeCheckpointer().restore(d.resolve())
+  params["policy"]["params"]["mlp"]["hidden_0"]["kernel"] *= 3.0
+  shutil.rmtree(d)
+  ocp.PyTreeCheckpointer().save(d.resolve(), params)
+  with pytest.raises(ckpt.CheckpointError, match="content hash differs"):
+    train_high("waypoint", "zoo:t/low", cfg(3 * steps), seeds=1, out=high, quiet=True, resume=True)

@@ -343,6 +343,7 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
           f"cannot resume {source} with total_env_steps={budget(info)}: it has already trained {done} env "
           f"steps; give --total-env-steps >= {done}")
     saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)))
+  saved = _same_low_as_slim_copy(saved, info)
   # meta["sac"] repeats the config; a state saved before the card format was recorded has format 1
   no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m not in ("sac", FORMAT_KEY)} if k == "meta"
                           else d.get(k)) for k in info}
@@ -359,6 +360,19 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
         f"cannot resume from {source}: the saved run differs from the requested one in "
         f"{'; '.join(diffs[:6])}{' ...' if len(diffs) > 6 else ''}. Resume with the saved settings "
         f"(see {ckpt.state_dir(source) / 'state.json'}) or start a new run in another out= directory")
+
+
+def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
+  """``saved`` with the LL hash of ``info`` when the LL it recorded is now a slim zoo copy of the same
+  parameters (:func:`zoo.hash_aliases`): slimming an entry is not retraining it."""
+  old, now = (d.get("meta", {}).get("low") for d in (saved, info))
+  if not (isinstance(old, dict) and isinstance(now, dict) and old.get("sha256") != now.get("sha256")
+          and old.get("path") == now.get("path") and isinstance(now.get("path"), str)):
+    return saved
+  from hdt.transfer import zoo
+  if old.get("sha256") not in zoo.hash_aliases(now["path"], int(now.get("seed_index", 0))):
+    return saved
+  return dict(saved, meta=dict(saved["meta"], low=dict(old, sha256=now["sha256"])))
 
 
 def _resume(source: Path, trainer, info: dict):
