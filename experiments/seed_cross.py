@@ -62,7 +62,8 @@ def main(argv=None):
              for l in range(m.shape[1])}
     plots.heatmap(dict(rows=[f"LL seed {l}" for l in range(m.shape[1])], cols=[f"HL seed {h}" for h in range(m.shape[0])],
                        cells=cells, task=args.task), f"{args.out}_{name}.png",
-                  title=f"{args.task}: HL {args.high} over LL {name} ({run}), success per seed pair")
+                  title=f"{args.task}: HL {args.high} over LL {name} ({run}), success per seed pair",
+                  xlabel=f"seed of the HL ({args.high})", ylabel=f"seed of the LL ({name})")
     print(f"{name}: mean {np.mean(m):.3f}; per LL seed {np.round(m.mean(0), 3).tolist()}; "
           f"per HL seed {np.round(m.mean(1), 3).tolist()}", flush=True)
   write_csv_atomic(Path(args.out + ".csv"), ("low", "hl_seed", "ll_seed", "success"), rows)

@@ -46,8 +46,9 @@ def learning_curves(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path, h
   return _save(fig, path)
 
 
-def heatmap(matrix: dict, path, title: str = "") -> Path:
-  """A zero-shot transfer matrix from :func:`hdt.transfer.evaluate.zero_shot_matrix`."""
+def heatmap(matrix: dict, path, title: str = "", xlabel: str = "HL trained on", ylabel: str = "LL of") -> Path:
+  """A zero-shot transfer matrix from :func:`hdt.transfer.evaluate.zero_shot_matrix` (or any matrix of
+  that form; ``xlabel`` / ``ylabel`` name its columns and rows)."""
   rows, cols = matrix["rows"], matrix["cols"]
   mean = np.array([[matrix["cells"][(r, c)][0] for c in cols] for r in rows])
   std = np.array([[matrix["cells"][(r, c)][1] for c in cols] for r in rows])
@@ -60,7 +61,7 @@ def heatmap(matrix: dict, path, title: str = "") -> Path:
               color="w" if mean[i, j] < mean.mean() else "k", fontsize=9)
   ax.set_xticks(range(len(cols)), cols)
   ax.set_yticks(range(len(rows)), rows)
-  ax.set(xlabel="HL trained on", ylabel="LL of", title=title or f"{matrix['task']}: {metric}")
+  ax.set(xlabel=xlabel, ylabel=ylabel, title=title or f"{matrix['task']}: {metric}")
   fig.colorbar(im, ax=ax, label=metric)
   return _save(fig, path)
 
