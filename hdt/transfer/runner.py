@@ -363,16 +363,18 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
 
 
 def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
-  """``saved`` with the LL hash of ``info`` when the LL it recorded is now a slim zoo copy of the same
-  parameters (:func:`zoo.hash_aliases`): slimming an entry is not retraining it."""
-  old, now = (d.get("meta", {}).get("low") for d in (saved, info))
-  if not (isinstance(old, dict) and isinstance(now, dict) and old.get("sha256") != now.get("sha256")
-          and old.get("path") == now.get("path") and isinstance(now.get("path"), str)):
-    return saved
+  """``saved`` with the LL hashes of ``info`` where an LL it recorded (the HL's ``low``, the aligned
+  LL's imitated ``aligned_to``) is now a slim zoo copy of the same parameters (:func:`zoo.hash_aliases`):
+  slimming an entry is not retraining it."""
   from hdt.transfer import zoo
-  if old.get("sha256") not in zoo.hash_aliases(now["path"], int(now.get("seed_index", 0))):
-    return saved
-  return dict(saved, meta=dict(saved["meta"], low=dict(old, sha256=now["sha256"])))
+  meta = dict(saved.get("meta") or {})
+  for key in ("low", "aligned_to"):
+    old, now = meta.get(key), (info.get("meta") or {}).get(key)
+    if (isinstance(old, dict) and isinstance(now, dict) and old.get("sha256") != now.get("sha256")
+        and old.get("path") == now.get("path") and isinstance(now.get("path"), str)
+        and old.get("sha256") in zoo.hash_aliases(now["path"], int(now.get("seed_index", 0)))):
+      meta[key] = dict(old, sha256=now["sha256"])
+  return dict(saved, meta=meta)
 
 
 def _resume(source: Path, trainer, info: dict):
