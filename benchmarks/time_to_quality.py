@@ -377,14 +377,15 @@ def main():
 def update_results(out, source="benchmarks/time_to_quality.py"):
   """sbx_speedup_<agent>_reach (or the row's ``results_key``): the wall-clock ratio at the primary
   threshold; if hdt did not reach it in every seed, at the tightest threshold it did reach in every
-  seed (the source says which)."""
+  seed (the source says which), unless the row is ``primary_only`` (a fixed quality: no number then)."""
   for a, r in out["agents"].items():
     higher = r.get("higher", False)
     cands = [(float(t), c) for t, c in r["by_threshold"].items()
              if "speedup_seconds" in c and c["hdt_all_reached"]]
     prim = [tc for tc in cands if tc[0] == float(r["threshold"])]
     tightest = max if higher else min
-    pick = prim[0] if prim else (tightest(cands, key=lambda tc: tc[0]) if cands else None)
+    pick = prim[0] if prim else (tightest(cands, key=lambda tc: tc[0]) if cands and not r.get("primary_only")
+                                 else None)
     if pick is None:
       continue
     thr, c = pick

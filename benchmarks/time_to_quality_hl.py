@@ -1,6 +1,6 @@
-"""Time to quality on a high level: hdt vs SBX on the PM Waypoint HL over the same frozen point-mass LL.
+"""Time to quality on a high level: hdt vs SBX on a PM HL over the same frozen LL.
 
-    python benchmarks/time_to_quality_hl.py [--seeds 2] [--quick] [--check] [--low-run DIR]
+    python benchmarks/time_to_quality_hl.py [--task waypoint|push1] [--seeds 2] [--quick] [--check] [--low-run DIR]
         [--hdt-configs NAME,...] [--skip-sbx] [--skip-hdt] [--sbx-max-minutes 3]
         [--hdt-max-minutes 1.5] [--out FILE] [--compile-cache DIR] [--recompute]
 
@@ -8,10 +8,17 @@ The third task of issue 8's time-to-quality item, next to the LL reach tasks of
 ``benchmarks/time_to_quality.py``, whose helpers (training loops, first crossings, summaries, table,
 results.json update) it imports; the fairness rules are the same.
 
-Frozen LL: a point-mass LL trained once by ``hdt.train_low("point", ...)`` with the ``cpu`` preset's
-budget (20k env steps, 8 envs, one update per env step) into ``--low-run DIR`` and reused from there
-on later invocations (its training is in neither clock). Both learners train an HL over its seed-0
-policy.
+Two tasks (``--task``, ``TASKS`` below):
+- ``waypoint`` (default): the PM Waypoint HL. Frozen LL: a point-mass LL trained once by
+  ``hdt.train_low("point", ...)`` with the ``cpu`` preset's budget (20k env steps, 8 envs, one update
+  per env step) into ``--low-run DIR`` and reused from there on later invocations (its training is in
+  neither clock).
+- ``push1``: issue 17's paper quality, the arm_point HL solving BlockPush 1 in >= 90% of episodes, over
+  the fixed zoo LL ``zoo:arm_point/low``. The metric is the success rate of the evaluation episodes (an
+  episode succeeds if the block reaches its goal at any HL step; the task ends the episode there). Its
+  HL env is built the same way; everything below that says "Waypoint" holds for it with "success rate"
+  for "return".
+Both learners train an HL over the LL's seed-0 policy.
 
 Task: ``hdt.transfer.pipeline.high_env("waypoint", DIR)``, hdt's HL env: one HL action is a relative
 sub-goal in [-1, 1]^2 (times delta_max = 4 m), one HL step is k = 32 LL steps of the frozen
@@ -65,13 +72,12 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
 from hdt.cache import enable_compile_cache  # noqa: E402
+from hdt.transfer import checkpoint as ckpt  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
 from hdt.transfer import pipeline  # noqa: E402
 
 import time_to_quality as ttq  # noqa: E402
 
-NAME = "pm_waypoint_hl"
-HL_TASK = "waypoint"
 # The frozen LL: the cpu preset's point-mass LL (the one RESULTS.md's Waypoint row used).
 LOW_CONFIG = dict(total_env_steps=configs.CPU_LOW_STEPS["point"], num_envs=8, updates_per_step=8,
                   steps_per_chunk=250, num_eval_episodes=16)
@@ -84,9 +90,20 @@ LOW_CONFIG = dict(total_env_steps=configs.CPU_LOW_STEPS["point"], num_envs=8, up
 # lies within the plateau's evaluation-to-evaluation swing, so a run can hover below it by chance.
 # The looser 500 marks learning well under way (the untrained HL scores about -7,000: it walks
 # away from the waypoints).
-TASK = dict(threshold=1000.0, extra_thresholds=(500.0,), eval_every=128, max_steps=12_288,
-            sbx=dict(net_arch=[64, 64], learning_rate=3e-4, batch_size=64, buffer_size=50_000))
-QUICK = dict(threshold=-1000.0, extra_thresholds=(), eval_every=128, max_steps=1024)
+# The paper's HL hyper-parameters (configs.high_config, the same for both tasks).
+SBX_HL = dict(net_arch=[64, 64], learning_rate=3e-4, batch_size=64, buffer_size=50_000)
+TASKS = {
+    "waypoint": dict(name="pm_waypoint_hl", low=None, metric="return", threshold=1000.0,
+                     extra_thresholds=(500.0,), eval_every=128, max_steps=12_288, sbx=SBX_HL,
+                     results_key="sbx_speedup_pm_waypoint_hl", primary_only=False,
+                     quick=dict(threshold=-1000.0, extra_thresholds=(), eval_every=128, max_steps=1024)),
+    # issue 17's quality: >= 90% of episodes solved; 0.5 marks learning well under way. The budget
+    # cap is the paper's HL budget. results.json gets a number only if hdt reached 0.9 in every seed.
+    "push1": dict(name="pm_push1_hl", low="zoo:arm_point/low", metric="success", threshold=0.9,
+                  extra_thresholds=(0.5,), eval_every=2000, max_steps=500_000, sbx=SBX_HL,
+                  results_key="sbx_speedup_pm_push1_hl_paper_quality", primary_only=True,
+                  quick=dict(threshold=0.5, extra_thresholds=(), eval_every=512, max_steps=2048)),
+}
 # hdt settings: SACConfig overrides on top of configs.high_config (paper network, lr, batch 64).
 HDT_CONFIGS = {
     "e8_u8_b64": dict(num_envs=8, updates_per_step=8, batch_size=64),  # UTD 1, the cpu preset
@@ -99,7 +116,9 @@ HDT_CONFIGS = {
 
 
 def ensure_low(low_dir: str, log) -> dict:
-  """Trains the point-mass LL into ``low_dir`` unless a finished run is there; returns its summary."""
+  """Trains the point-mass LL into ``low_dir`` unless a finished run (or a zoo entry) is there; returns
+  its summary."""
+  low_dir = ckpt.zoo_path(low_dir)
   if not os.path.exists(os.path.join(low_dir, "meta.json")):
     log(f"== training the frozen point-mass LL into {low_dir} ({LOW_CONFIG['total_env_steps']} env steps)")
     t = time.perf_counter()
@@ -112,25 +131,28 @@ def ensure_low(low_dir: str, log) -> dict:
               num_envs=cfg["num_envs"], updates_per_step=cfg["updates_per_step"])
 
 
-def hl_env(low_dir):
-  return pipeline.high_env(HL_TASK, low_dir)
+def hl_env(task, low_dir):
+  return pipeline.high_env(task, low_dir)
 
 
-def make_hl_evaluator(env, policy_fn, episodes: int):
-  """jitted ``(params) -> mean episode return`` of ``policy_fn(params, obs) -> action`` over
-  ``episodes`` HL episodes from the fixed key ``ttq.EVAL_KEY``, each counted to its first done."""
+def make_hl_evaluator(env, policy_fn, episodes: int, metric: str = "return"):
+  """jitted ``(params) -> metric`` of ``policy_fn(params, obs) -> action`` over ``episodes`` HL
+  episodes from the fixed key ``ttq.EVAL_KEY``, each counted to its first done: the mean episode
+  return, or (``metric="success"``) the fraction of episodes with a successful HL step."""
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
   keys = jax.random.split(jax.random.PRNGKey(ttq.EVAL_KEY), episodes)
 
   def evaluate(params):
     def step(c, _):
-      s, alive, ret = c
+      s, alive, ret, won = c
       s = v_step(s, policy_fn(params, s.obs))
-      return (s, alive * (1.0 - s.done), ret + alive * s.reward), None
+      won = jnp.maximum(won, alive * s.metrics["success"]) if metric == "success" else won
+      return (s, alive * (1.0 - s.done), ret + alive * s.reward, won), None
 
-    c0 = (v_reset(keys), jnp.ones((episodes,)), jnp.zeros((episodes,)))
-    (_, _, ret), _ = jax.lax.scan(step, c0, None, length=env.horizon)
-    return jnp.mean(ret)
+    zeros = jnp.zeros((episodes,))
+    c0 = (v_reset(keys), jnp.ones((episodes,)), zeros, zeros)
+    (_, _, ret, won), _ = jax.lax.scan(step, c0, None, length=env.horizon)
+    return jnp.mean(won if metric == "success" else ret)
 
   return jax.jit(evaluate)
 
@@ -190,32 +212,34 @@ def make_gym_env(env, seed: int | None = None):
 # The two learners (training loops shared with the LL benchmark)
 
 
-def run_hdt(low_dir, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+def run_hdt(task, low_dir, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
   t0 = time.perf_counter()
-  env = hl_env(low_dir)
-  cfg = configs.high_config(HL_TASK, total_env_steps=max_steps,
+  env = hl_env(task, low_dir)
+  cfg = configs.high_config(task, total_env_steps=max_steps,
                             steps_per_chunk=eval_every // overrides["num_envs"], **overrides)
-  make_eval = lambda trainer: make_hl_evaluator(env, ttq.hdt_policy_fn(trainer.networks), episodes)
+  metric = TASKS[task]["metric"]
+  make_eval = lambda trainer: make_hl_evaluator(env, ttq.hdt_policy_fn(trainer.networks), episodes, metric)
   return ttq.hdt_loop("hdt HL", env, cfg, seed, make_eval, thresholds, max_seconds, log, t0,
-                      higher=True, metric_name="return")
+                      higher=True, metric_name=metric)
 
 
-def run_sbx(low_dir, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
-  env = hl_env(low_dir)  # evaluator's env; the gym wrapper (built inside the clock) wraps it too
+def run_sbx(task, low_dir, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+  env = hl_env(task, low_dir)  # evaluator's env; the gym wrapper (built inside the clock) wraps it too
   t0 = time.perf_counter()
-  make_eval = lambda apply_fn: make_hl_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes)
+  metric = TASKS[task]["metric"]
+  make_eval = lambda apply_fn: make_hl_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes, metric)
   genv = []
   res = ttq.sbx_loop("sbx HL", lambda: genv.append(make_gym_env(env, seed=seed)) or genv[0], hp, seed,
                      make_eval, thresholds, eval_every, max_steps, max_seconds, log, t0, higher=True,
-                     metric_name="return")
+                     metric_name=metric)
   res["env_compile_s"] = genv[0].compile_s  # inside SBX's clock: hdt's HL env step, jitted for 1 env
   log(f"    sbx HL seed {seed}: of which compiling the wrapped env's reset/step {genv[0].compile_s:.1f}s")
   return res
 
 
-def check(low_dir, steps=120):
+def check(task, low_dir, steps=120):
   """hdt's vmapped HL env (as in training) vs the gym wrapper, same start and actions."""
-  env = hl_env(low_dir)
+  env = hl_env(task, low_dir)
   key = 3
   v_reset, v_step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
   s = v_reset(jax.random.PRNGKey(key)[None])
@@ -235,8 +259,36 @@ def check(low_dir, steps=120):
       dones += 1
       o, _ = g.reset()
       od = max(od, float(np.abs(o - np.asarray(s.obs)[0]).max()))
-  print(f"{NAME}: hdt (vmapped) vs gym wrapper over {steps} random HL steps ({dones} episode ends): "
+  print(f"{TASKS[task]['name']}: hdt (vmapped) vs gym wrapper over {steps} random HL steps ({dones} episode ends): "
         f"max |obs diff| {od:.2e}, max |reward diff| {rd:.2e}, done-flag mismatches {flags}")
+
+
+def env_cost(task, low_dir, num_envs=8, steps=200):
+  """Seconds per HL decision of the env alone: hdt's vmapped step over ``num_envs`` envs (one call per
+  training step) and the gym wrapper's single-env step that SBX calls per decision (random actions,
+  after a warm-up call). A lower bound on either learner's time per decision."""
+  env = hl_env(task, low_dir)
+  v_step = jax.jit(jax.vmap(env.step))
+  s = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), num_envs))
+  rng = np.random.default_rng(0)
+  acts = [jnp.asarray(rng.uniform(-1, 1, (num_envs, env.action_size)), jnp.float32) for _ in range(steps)]
+  s = jax.block_until_ready(v_step(s, acts[0]))
+  t = time.perf_counter()
+  for a in acts:
+    s = v_step(s, a)
+  jax.block_until_ready(s)
+  vm = (time.perf_counter() - t) / (steps * num_envs)
+  g = make_gym_env(env, seed=0)
+  g.step(np.zeros(env.action_size, np.float32))
+  t = time.perf_counter()
+  for _ in range(steps):
+    _, _, term, trunc, _ = g.step(rng.uniform(-1, 1, env.action_size).astype(np.float32))
+    if term or trunc:
+      g.reset()
+  one = (time.perf_counter() - t) / steps
+  print(f"{TASKS[task]['name']}: env alone per HL decision: hdt vmapped x{num_envs} {1e3 * vm:.2f} ms, "
+        f"gym wrapper (SBX) {1e3 * one:.2f} ms, ratio {one / vm:.1f}x (load {ttq.load()})")
+  return dict(hdt_vmapped_s=vm, gym_single_s=one, num_envs=num_envs)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -245,17 +297,20 @@ def check(low_dir, steps=120):
 def main():
   ap = argparse.ArgumentParser()
   ttq.add_run_args(ap, hdt_configs=HDT_CONFIGS, seeds=2, sbx_minutes=3.0, hdt_minutes=1.5, episodes=32)
-  ap.add_argument("--threshold", type=float, help="override the threshold (mean return)")
+  ap.add_argument("--task", choices=sorted(TASKS), default="waypoint", help="the HL task (module docstring)")
+  ap.add_argument("--threshold", type=float, help="override the threshold (mean return or success rate)")
   ap.add_argument("--extra-thresholds", help="override the extra thresholds (comma-separated)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (HL env steps)")
   ap.add_argument("--max-steps", type=int, help="override the HL env-step cap per seed")
-  ap.add_argument("--low-run", default=os.path.join(tempfile.gettempdir(), "hdt-ttq-hl", "low_point"),
-                  help="run dir of the frozen point-mass LL (trained there if missing)")
+  ap.add_argument("--low-run", help="the frozen LL: a run dir or zoo name (default: waypoint's point LL, "
+                  "trained into a temp dir if missing; push1's zoo:arm_point/low)")
   ap.add_argument("--recompute", action="store_true",
                   help="recompute the comparison and table from --out (no training)")
   ap.add_argument("--check", action="store_true", help="only compare hdt's HL env and the gym wrapper")
-  ap.add_argument("--out", help="JSON to write (default benchmarks/time_to_quality_hl.json; with "
-                  "--quick a temp file)")
+  ap.add_argument("--env-cost", action="store_true", help="only time the env alone per HL decision, "
+                  "hdt's vmapped step and the gym wrapper's")
+  ap.add_argument("--out", help="JSON to write (default benchmarks/time_to_quality_hl.json, "
+                  "..._hl_push1.json for push1; with --quick a temp file)")
   ap.add_argument("--no-results", action="store_true", help="do not update benchmarks/results.json")
   ap.add_argument("--compile-cache", help="JAX compilation cache dir (default: a fresh temp dir)")
   args = ap.parse_args()
@@ -264,9 +319,13 @@ def main():
     print(msg, flush=True)
 
   source = "benchmarks/time_to_quality_hl.py"
+  spec = TASKS[args.task]
+  suffix = "" if args.task == "waypoint" else f"_{args.task}"
   if args.out is None:
-    args.out = (os.path.join(tempfile.gettempdir(), "time_to_quality_hl_quick.json") if args.quick
-                else os.path.join(HERE, "time_to_quality_hl.json"))
+    args.out = (os.path.join(tempfile.gettempdir(), f"time_to_quality_hl{suffix}_quick.json") if args.quick
+                else os.path.join(HERE, f"time_to_quality_hl{suffix}.json"))
+  if args.low_run is None:
+    args.low_run = spec["low"] or os.path.join(tempfile.gettempdir(), "hdt-ttq-hl", "low_point")
   if args.recompute:
     with open(args.out) as f:
       out = json.load(f)
@@ -281,10 +340,13 @@ def main():
   args.compile_cache = str(enable_compile_cache(args.compile_cache or tempfile.mkdtemp(prefix="hdt-ttq-hl-")))
   low = ensure_low(args.low_run, log)
   if args.check:
-    check(args.low_run)
+    check(args.task, args.low_run)
+    return
+  if args.env_cost:
+    env_cost(args.task, args.low_run)
     return
 
-  task = dict(TASK, **(QUICK if args.quick else {}))
+  task = dict(spec, **(spec["quick"] if args.quick else {}))
   for k in ("threshold", "eval_every", "max_steps"):
     if getattr(args, k) is not None:
       task[k] = getattr(args, k)
@@ -301,26 +363,27 @@ def main():
                           load_start=ttq.load()), args=vars(args), low=low, agents={})
   res = dict(threshold=thr, thresholds=thrs, eval_every=every, max_steps=cap,
              eval_episodes=args.eval_episodes, sbx_hyper=task["sbx"], hdt={}, sbx=None,
-             higher=True, unit="", metric="mean eval return ", results_key=f"sbx_speedup_{NAME}")
-  log(f"== PM Waypoint HL over {low['dir']}: quality = mean eval return >= {thrs} (load {ttq.load()})")
+             higher=True, unit="", metric=f"eval {task['metric']} ", results_key=task["results_key"],
+             primary_only=task["primary_only"])
+  log(f"== PM {args.task} HL over {low['dir']}: quality = eval {task['metric']} >= {thrs} (load {ttq.load()})")
   if not args.skip_hdt:
     for name in hdt_names:
-      runs = [run_hdt(args.low_run, HDT_CONFIGS[name], s, thrs, every, cap, 60 * args.hdt_max_minutes,
+      runs = [run_hdt(args.task, args.low_run, HDT_CONFIGS[name], s, thrs, every, cap, 60 * args.hdt_max_minutes,
                       args.eval_episodes, log) for s in seeds]
       res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=runs)
   if not args.skip_sbx:
-    runs = [run_sbx(args.low_run, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
+    runs = [run_sbx(args.task, args.low_run, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
                     args.eval_episodes, log) for s in seeds]
     res["sbx"] = dict(runs=runs)
   if os.path.exists(args.out) and (args.skip_sbx or args.skip_hdt):  # merge with the other half
     with open(args.out) as f:
-      old = json.load(f).get("agents", {}).get(NAME, {})
+      old = json.load(f).get("agents", {}).get(task["name"], {})
     if args.skip_sbx and old.get("sbx"):
       res["sbx"] = old["sbx"]
     if args.skip_hdt:
       res["hdt"] = old.get("hdt", {})
   res["by_threshold"] = ttq.compare(res, thrs)
-  out["agents"][NAME] = res
+  out["agents"][task["name"]] = res
   out["machine"]["load_end"] = ttq.load()
   with open(args.out, "w") as f:
     json.dump(out, f, indent=1)
