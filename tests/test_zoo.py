@@ -27,11 +27,40 @@ def test_unknown_zoo_name_is_one_clear_error():
     ev.compose("zoo:nope", "zoo:arm_point/low")
 
 
+def _as_exported_before_slimming(run, zoo_dir):
+  """Makes zoo entry t/low look as exported before LLs dropped their final parameters; returns its hash."""
+  import json
+  from pathlib import Path
+
+  import orbax.checkpoint as ocp
+
+  from hdt.transfer import checkpoint as ckpt
+  final = ocp.PyTreeCheckpointer().restore((Path(run) / "seed_0/params").resolve())
+  ocp.PyTreeCheckpointer().save((zoo_dir / "t/low/seed_0/params").resolve(),
+                                {k: v for k, v in final.items() if k in zoo.POLICY_KEYS})
+  old_hash = ckpt.content_hash("zoo:t/low", 0)
+  info = json.loads((zoo_dir / "t/low/zoo.json").read_text())
+  info["slim"][0]["sha256"] = old_hash
+  (zoo_dir / "t/low/zoo.json").write_text(json.dumps(info))
+  return old_hash, info
+
+
+def _break_first_layer(zoo_dir, shuffle: bool):
+  """Changes the first layer of zoo entry t/low's LL policy (a retrained or broken checkpoint)."""
+  import shutil
+
+  import orbax.checkpoint as ocp
+  d = zoo_dir / "t/low/seed_0/best/params"
+  params = ocp.PyTreeCheckpointer().restore(d.resolve())
+  k = params["policy"]["params"]["mlp"]["hidden_0"]["kernel"]
+  params["policy"]["params"]["mlp"]["hidden_0"]["kernel"] = (k[:, ::-1] if shuffle else k) * 3.0
+  shutil.rmtree(d)
+  ocp.PyTreeCheckpointer().save(d.resolve(), params)
+
+
 def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(point_low, point_high,
                                                                                 tmp_path, monkeypatch):
   import json
-  import shutil
-  from pathlib import Path
 
   import orbax.checkpoint as ocp
 
@@ -57,13 +86,7 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   ev.compose("zoo:t/high", "zoo:t/low")
   # an entry exported before the LL's final parameters were dropped is slimmed in place, remembers the
   # hash it had, and still composes
-  final = ocp.PyTreeCheckpointer().restore((Path(run) / "seed_0/params").resolve())
-  ocp.PyTreeCheckpointer().save((tmp_path / "zoo/t/low/seed_0/params").resolve(),
-                                {k: v for k, v in final.items() if k in zoo.POLICY_KEYS})
-  old_hash = ckpt.content_hash("zoo:t/low", 0)
-  info = json.loads((tmp_path / "zoo/t/low/zoo.json").read_text())
-  info["slim"][0]["sha256"] = old_hash
-  (tmp_path / "zoo/t/low/zoo.json").write_text(json.dumps(info))
+  old_hash, info = _as_exported_before_slimming(run, tmp_path / "zoo")
   slim = zoo.reslim("t/low")["slim"][0]
   assert not (tmp_path / "zoo/t/low/seed_0/params").exists()
   assert slim["sha256"] == ckpt.content_hash("zoo:t/low", 0) and slim["earlier_sha256"] == [old_hash]
@@ -77,12 +100,7 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   assert after["reevaluated"][0]["previous"]["evaluation"] == before["evaluation"] and after["command"] == "test"
   assert not zoo.within_noise(*zoo.recheck("t/high"))
   # a broken LL checkpoint (its first layer shuffled) is outside noise; its changed files are refused
-  d = tmp_path / "zoo/t/low/seed_0/best/params"
-  params = ocp.PyTreeCheckpointer().restore(d.resolve())
-  k = params["policy"]["params"]["mlp"]["hidden_0"]["kernel"]
-  params["policy"]["params"]["mlp"]["hidden_0"]["kernel"] = k[:, ::-1] * 3.0
-  shutil.rmtree(d)
-  ocp.PyTreeCheckpointer().save(d.resolve(), params)
+  _break_first_layer(tmp_path / "zoo", shuffle=True)
   info = json.loads((tmp_path / "zoo/t/low/zoo.json").read_text())
   assert info["slim"][0]["sha256"] != ckpt.content_hash("zoo:t/low", 0)
   assert zoo.within_noise(*zoo.recheck("t/low"))
@@ -108,25 +126,13 @@ def test_zoo_table_lists_every_entry_with_the_parameters_its_numbers_are_of():
 
 def test_an_hl_run_started_over_an_older_zoo_copy_resumes_after_the_entry_is_slimmed(point_low, tmp_path,
                                                                                      monkeypatch):
-  import json
-  import shutil
-  from pathlib import Path
-
-  import orbax.checkpoint as ocp
-
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import configs
   from hdt.transfer.pipeline import train_high
   monkeypatch.setattr(zoo, "ZOO_DIR", tmp_path / "zoo")
   run = point_low.run_dir if hasattr(point_low, "run_dir") else point_low
   zoo.export(run, "t/low", "test", episodes=4)
-  # the copy as exported before LLs dropped their final parameters
-  final = ocp.PyTreeCheckpointer().restore((Path(run) / "seed_0/params").resolve())
-  ocp.PyTreeCheckpointer().save((tmp_path / "zoo/t/low/seed_0/params").resolve(),
-                                {k: v for k, v in final.items() if k in zoo.POLICY_KEYS})
-  info = json.loads((tmp_path / "zoo/t/low/zoo.json").read_text())
-  info["slim"][0]["sha256"] = ckpt.content_hash("zoo:t/low", 0)
-  (tmp_path / "zoo/t/low/zoo.json").write_text(json.dumps(info))
+  _as_exported_before_slimming(run, tmp_path / "zoo")
   steps = 256
   cfg = lambda total: configs.high_config("waypoint", total_env_steps=total, num_envs=8, updates_per_step=8,
                                           steps_per_chunk=steps // 8, num_eval_episodes=4)
@@ -136,10 +142,6 @@ def test_an_hl_run_started_over_an_older_zoo_copy_resumes_after_the_entry_is_sli
   res = train_high("waypoint", "zoo:t/low", cfg(2 * steps), seeds=1, out=high, quiet=True, resume=True)
   assert int(np.max(res.history["env_steps"])) == 2 * steps
   # a real change of the LL is still refused
-  d = tmp_path / "zoo/t/low/seed_0/best/params"
-  params = ocp.PyTreeCheckpointer().restore(d.resolve())
-  params["policy"]["params"]["mlp"]["hidden_0"]["kernel"] *= 3.0
-  shutil.rmtree(d)
-  ocp.PyTreeCheckpointer().save(d.resolve(), params)
+  _break_first_layer(tmp_path / "zoo", shuffle=False)
   with pytest.raises(ckpt.CheckpointError, match="content hash differs"):
     train_high("waypoint", "zoo:t/low", cfg(3 * steps), seeds=1, out=high, quiet=True, resume=True)
