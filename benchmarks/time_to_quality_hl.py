@@ -1,6 +1,6 @@
 """Time to quality on a high level: hdt vs SBX on a PM HL over the same frozen LL.
 
-    python benchmarks/time_to_quality_hl.py [--task waypoint|push1] [--seeds 2] [--quick] [--check] [--low-run DIR]
+    python benchmarks/time_to_quality_hl.py [--task waypoint|push1] [--seeds 2] [--first-seed 0] [--quick] [--check] [--low-run DIR]
         [--hdt-configs NAME,...] [--skip-sbx] [--skip-hdt] [--sbx-max-minutes 3]
         [--hdt-max-minutes 1.5] [--out FILE] [--compile-cache DIR] [--recompute]
 
@@ -298,6 +298,9 @@ def main():
   ap = argparse.ArgumentParser()
   ttq.add_run_args(ap, hdt_configs=HDT_CONFIGS, seeds=2, sbx_minutes=3.0, hdt_minutes=1.5, episodes=32)
   ap.add_argument("--task", choices=sorted(TASKS), default="waypoint", help="the HL task (module docstring)")
+  ap.add_argument("--first-seed", type=int, default=0,
+                  help="run seeds first..first+seeds-1; with --skip-hdt/--skip-sbx they join the same seeds' "
+                       "half already in --out, replacing any run of the same seed")
   ap.add_argument("--threshold", type=float, help="override the threshold (mean return or success rate)")
   ap.add_argument("--extra-thresholds", help="override the extra thresholds (comma-separated)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (HL env steps)")
@@ -356,7 +359,7 @@ def main():
     task["extra_thresholds"] = ()
   thr, every, cap = task["threshold"], task["eval_every"], task["max_steps"]
   thrs = [thr, *task["extra_thresholds"]]
-  seeds = list(range(1 if args.quick else args.seeds))
+  seeds = list(range(args.first_seed, args.first_seed + (1 if args.quick else args.seeds)))
   hdt_names = args.hdt_configs.split(",")[:1] if args.quick else args.hdt_configs.split(",")
 
   out = dict(machine=dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__,
@@ -382,6 +385,15 @@ def main():
       res["sbx"] = old["sbx"]
     if args.skip_hdt:
       res["hdt"] = old.get("hdt", {})
+      if old.get("sbx") and res["sbx"]:  # seeds run now replace the same seeds run before
+        new = {r["seed"] for r in res["sbx"]["runs"]}
+        keep = [r for r in old["sbx"]["runs"] if r["seed"] not in new]
+        res["sbx"]["runs"] = sorted(keep + res["sbx"]["runs"], key=lambda r: r["seed"])
+    elif args.skip_sbx and old.get("hdt"):
+      for name, h in res["hdt"].items():
+        new = {r["seed"] for r in h["runs"]}
+        keep = [r for r in old["hdt"].get(name, {}).get("runs", []) if r["seed"] not in new]
+        h["runs"] = sorted(keep + h["runs"], key=lambda r: r["seed"])
   res["by_threshold"] = ttq.compare(res, thrs)
   out["agents"][task["name"]] = res
   out["machine"]["load_end"] = ttq.load()
