@@ -294,13 +294,20 @@ def env_cost(task, low_dir, num_envs=8, steps=200):
 # ------------------------------------------------------------------------------------------------
 
 
+def merge_seeds(old: list[dict], new: list[dict]) -> list[dict]:
+  """The runs of an earlier invocation (``--first-seed``) with this one's, a seed run now replacing
+  the same seed run before."""
+  seeds = {r["seed"] for r in new}
+  return sorted([r for r in old if r["seed"] not in seeds] + new, key=lambda r: r["seed"])
+
+
 def main():
   ap = argparse.ArgumentParser()
   ttq.add_run_args(ap, hdt_configs=HDT_CONFIGS, seeds=2, sbx_minutes=3.0, hdt_minutes=1.5, episodes=32)
   ap.add_argument("--task", choices=sorted(TASKS), default="waypoint", help="the HL task (module docstring)")
   ap.add_argument("--first-seed", type=int, default=0,
-                  help="run seeds first..first+seeds-1; with --skip-hdt/--skip-sbx they join the same seeds' "
-                       "half already in --out, replacing any run of the same seed")
+                  help="run seeds first..first+seeds-1; with --skip-hdt (--skip-sbx) they join the SBX (hdt) "
+                       "runs already in --out, replacing any run of the same seed")
   ap.add_argument("--threshold", type=float, help="override the threshold (mean return or success rate)")
   ap.add_argument("--extra-thresholds", help="override the extra thresholds (comma-separated)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (HL env steps)")
@@ -385,15 +392,11 @@ def main():
       res["sbx"] = old["sbx"]
     if args.skip_hdt:
       res["hdt"] = old.get("hdt", {})
-      if old.get("sbx") and res["sbx"]:  # seeds run now replace the same seeds run before
-        new = {r["seed"] for r in res["sbx"]["runs"]}
-        keep = [r for r in old["sbx"]["runs"] if r["seed"] not in new]
-        res["sbx"]["runs"] = sorted(keep + res["sbx"]["runs"], key=lambda r: r["seed"])
+      if old.get("sbx") and res["sbx"]:
+        res["sbx"]["runs"] = merge_seeds(old["sbx"]["runs"], res["sbx"]["runs"])
     elif args.skip_sbx and old.get("hdt"):
       for name, h in res["hdt"].items():
-        new = {r["seed"] for r in h["runs"]}
-        keep = [r for r in old["hdt"].get(name, {}).get("runs", []) if r["seed"] not in new]
-        h["runs"] = sorted(keep + h["runs"], key=lambda r: r["seed"])
+        h["runs"] = merge_seeds(old["hdt"].get(name, {}).get("runs", []), h["runs"])
   res["by_threshold"] = ttq.compare(res, thrs)
   out["agents"][task["name"]] = res
   out["machine"]["load_end"] = ttq.load()
