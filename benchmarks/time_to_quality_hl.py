@@ -131,10 +131,6 @@ def ensure_low(low_dir: str, log) -> dict:
               num_envs=cfg["num_envs"], updates_per_step=cfg["updates_per_step"])
 
 
-def hl_env(task, low_dir):
-  return pipeline.high_env(task, low_dir)
-
-
 def make_hl_evaluator(env, policy_fn, episodes: int, metric: str = "return"):
   """jitted ``(params) -> metric`` of ``policy_fn(params, obs) -> action`` over ``episodes`` HL
   episodes from the fixed key ``ttq.EVAL_KEY``, each counted to its first done: the mean episode
@@ -214,7 +210,7 @@ def make_gym_env(env, seed: int | None = None):
 
 def run_hdt(task, low_dir, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
   t0 = time.perf_counter()
-  env = hl_env(task, low_dir)
+  env = pipeline.high_env(task, low_dir)
   cfg = configs.high_config(task, total_env_steps=max_steps,
                             steps_per_chunk=eval_every // overrides["num_envs"], **overrides)
   metric = TASKS[task]["metric"]
@@ -224,7 +220,7 @@ def run_hdt(task, low_dir, overrides, seed, thresholds, eval_every, max_steps, m
 
 
 def run_sbx(task, low_dir, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
-  env = hl_env(task, low_dir)  # evaluator's env; the gym wrapper (built inside the clock) wraps it too
+  env = pipeline.high_env(task, low_dir)  # evaluator's env; the gym wrapper (built inside the clock) wraps it too
   t0 = time.perf_counter()
   metric = TASKS[task]["metric"]
   make_eval = lambda apply_fn: make_hl_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes, metric)
@@ -239,7 +235,7 @@ def run_sbx(task, low_dir, hp, seed, thresholds, eval_every, max_steps, max_seco
 
 def check(task, low_dir, steps=120):
   """hdt's vmapped HL env (as in training) vs the gym wrapper, same start and actions."""
-  env = hl_env(task, low_dir)
+  env = pipeline.high_env(task, low_dir)
   key = 3
   v_reset, v_step = jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
   s = v_reset(jax.random.PRNGKey(key)[None])
@@ -267,7 +263,7 @@ def env_cost(task, low_dir, num_envs=8, steps=200):
   """Seconds per HL decision of the env alone: hdt's vmapped step over ``num_envs`` envs (one call per
   training step) and the gym wrapper's single-env step that SBX calls per decision (random actions,
   after a warm-up call). A lower bound on either learner's time per decision."""
-  env = hl_env(task, low_dir)
+  env = pipeline.high_env(task, low_dir)
   v_step = jax.jit(jax.vmap(env.step))
   s = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), num_envs))
   rng = np.random.default_rng(0)
@@ -299,6 +295,19 @@ def merge_seeds(old: list[dict], new: list[dict]) -> list[dict]:
   the same seed run before."""
   seeds = {r["seed"] for r in new}
   return sorted([r for r in old if r["seed"] not in seeds] + new, key=lambda r: r["seed"])
+
+
+def join_earlier(res: dict, old: dict, skip_sbx: bool, skip_hdt: bool) -> None:
+  """Completes ``res`` (in place) from ``old``, the same task's row of an earlier invocation: a
+  skipped half is taken from it, and the half run now joins its runs there (:func:`merge_seeds`)."""
+  if skip_sbx:
+    res["sbx"] = old.get("sbx") or res["sbx"]
+    for name, h in res["hdt"].items():
+      h["runs"] = merge_seeds(old.get("hdt", {}).get(name, {}).get("runs", []), h["runs"])
+  if skip_hdt:
+    res["hdt"] = old.get("hdt", {})
+    if res["sbx"]:
+      res["sbx"]["runs"] = merge_seeds((old.get("sbx") or {}).get("runs", []), res["sbx"]["runs"])
 
 
 def main():
@@ -388,15 +397,7 @@ def main():
   if os.path.exists(args.out) and (args.skip_sbx or args.skip_hdt):  # merge with the other half
     with open(args.out) as f:
       old = json.load(f).get("agents", {}).get(task["name"], {})
-    if args.skip_sbx and old.get("sbx"):
-      res["sbx"] = old["sbx"]
-    if args.skip_hdt:
-      res["hdt"] = old.get("hdt", {})
-      if old.get("sbx") and res["sbx"]:
-        res["sbx"]["runs"] = merge_seeds(old["sbx"]["runs"], res["sbx"]["runs"])
-    elif args.skip_sbx and old.get("hdt"):
-      for name, h in res["hdt"].items():
-        h["runs"] = merge_seeds(old["hdt"].get(name, {}).get("runs", []), h["runs"])
+    join_earlier(res, old, args.skip_sbx, args.skip_hdt)
   res["by_threshold"] = ttq.compare(res, thrs)
   out["agents"][task["name"]] = res
   out["machine"]["load_end"] = ttq.load()
