@@ -287,6 +287,14 @@ def _alongside_state(imitate, tmp_path, data, agent="point", **disc_kw):
   return {name: np.asarray(arrays["state"][f"{i:05d}"])[0] for i, (name, _, _) in enumerate(info["leaves"])}
 
 
+def _chain_breaks(leaves):
+  """The steps where A's row does not begin where its previous row ended (row t's g - s_t against row
+  t-1's g - s_t+1), from :func:`_alongside_state`'s 240 steps of 4 B envs."""
+  rows = leaves[".aux['buf_a']"][:240].reshape(60, 4, -1)
+  gap = np.abs(rows[1:, :, :2] - rows[:-1, :, 2:4]).max(axis=(1, 2))
+  return [int(t) + 1 for t in np.flatnonzero(gap > 1e-5)]
+
+
 def test_authors_offline_mode_starts_a_on_its_own_goal_then_follows_b(point_low, tmp_path):
   """DiscriminatorEnv with discrim_online=False (the README's alignment): at B's new goal A resets on a
   random goal of its own; after A's time limit (here 10 steps) it restarts on B's current z. A's rows
@@ -303,8 +311,21 @@ def test_authors_offline_mode_starts_a_on_its_own_goal_then_follows_b(point_low,
   # its own z, not at B's (row 0 of each env: B's episode start)
   first = buf_a[:4]
   assert not np.allclose(first[:, :2], first[:, 4:], atol=1e-3)
+  # prev_expert_obs is set before A's own restart: A's rows chain across it, B's episode start begins afresh
+  assert _chain_breaks(leaves) == [50]
   online = _alongside_state(point_low, tmp_path, "online", expert_time_limit=10)
   np.testing.assert_allclose(online[".aux['buf_a']"][:4, :2], online[".aux['buf_a']"][:4, 4:], atol=1e-5)
+
+
+def test_expert_prev_obs_post_restart_begins_a_row_afresh_after_a_own_restart(point_low, tmp_path):
+  """DiscriminatorEnv.step sets prev_expert_obs before ``expert_env.reset()``, so A's row after its own
+  restart begins at its old episode's last observation (the default, checked in the offline test
+  above); ``expert_prev_obs="post_restart"`` (hdt before session 16) begins it at the fresh one."""
+  assert D.DiscConfig().expert_prev_obs == "pre_restart"
+  leaves = _alongside_state(point_low, tmp_path, "offline", expert_time_limit=10, expert_prev_obs="post_restart")
+  assert _chain_breaks(leaves) == [10, 20, 30, 40, 50]
+  with pytest.raises(ValueError, match="expert_prev_obs='x' must be 'pre_restart' or 'post_restart'"):
+    D.DiscConfig(expert_prev_obs="x")
 
 
 def test_align_low_rejects_other_goal_space(point_low):

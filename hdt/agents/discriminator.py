@@ -29,7 +29,8 @@ at each of B's new goals, on a random goal of its own (``reset(low=True)`` sampl
 ``"online"`` on B's z (``reset`` then ``set_skill``). In both, when A's own episode ends (its done, or
 ``expert_time_limit`` steps: the README's ``--discrim-time-limit 32``) A restarts from a fresh start of
 its HL episodes (``expert_env.reset()``, ``low=False``; ``expert_restart``) on B's current z
-(``DiscriminatorEnv.step``). ``"fixed"`` is the paper text's description instead: a
+(``DiscriminatorEnv.step``); A's next row still begins at its last observation before that restart
+(``prev_expert_obs``; ``expert_prev_obs``). ``"fixed"`` is the paper text's description instead: a
 fixed set of A's taus on uniformly drawn goals, each with A's own z.
 
 The plug-ins (:func:`make_alignment`) follow ``hdt.agents.train.make_train``'s contract and are pure
@@ -84,6 +85,10 @@ class DiscConfig:
   # where A restarts after its own episode ends: "high", the start of its HL episodes (DiscriminatorEnv.step's
   # expert_env.reset(), low=False); "low", its LL start (hdt before session 11)
   expert_restart: str = "high"
+  # A's input row after its own restart: "pre_restart", from its last observation before the restart, as
+  # DiscriminatorEnv.step (prev_expert_obs is set before expert_env.reset(), so one row per A episode mixes
+  # the old goal with the new); "post_restart", from its fresh observation (hdt before session 16)
+  expert_prev_obs: str = "pre_restart"
   scale_inputs: bool = False  # True: divide inputs by A's delta_max (the authors feed raw units)
 
   def __post_init__(self):
@@ -106,6 +111,8 @@ class DiscConfig:
     bad += [f"data={self.data!r} must be one of {DATA_MODES}"] if self.data not in DATA_MODES else []
     bad += [f"expert_restart={self.expert_restart!r} must be 'high' or 'low'"] \
         if self.expert_restart not in ("high", "low") else []
+    bad += [f"expert_prev_obs={self.expert_prev_obs!r} must be 'pre_restart' or 'post_restart'"] \
+        if self.expert_prev_obs not in ("pre_restart", "post_restart") else []
     if bad:
       raise ValueError(f"invalid DiscConfig: {'; '.join(bad)}; the defaults are the authors' values")
 
@@ -255,7 +262,8 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     env must be a reach env too (its task state gives z).
   tau_scale: inputs are divided by it before the MLP (1 = the authors' raw units).
   The aux state: ``params``, ``opt_state``, ``buf`` (B's inputs), ``ptr``, ``size``, ``env_steps``,
-  and online ``buf_a`` (A's inputs, written in lockstep with ``buf``) and ``a_state`` (A's envs); with
+  and online ``buf_a`` (A's inputs, written in lockstep with ``buf``), ``a_state`` (A's envs) and, with
+  ``expert_prev_obs="pre_restart"``, ``a_prev`` (A's last observation before its restart); with
   held-out episodes (``cfg.test_every``) also ``ep`` (episodes begun per B env) and the held-out
   ``tbuf`` (``tbuf_a``), ``tptr``, ``tsize``.
   """
@@ -280,6 +288,7 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
   max_k = math.ceil(num_envs / ue)  # discriminator updates per training step, at most
   te = cfg.test_every if extras is not None else 0  # held-out episodes need episode starts
   cap_t = max(cap // 2, 1)
+  carry_prev = online and cfg.expert_prev_obs == "pre_restart"
 
   def inputs(tr: Any) -> jax.Array:
     return disc_input(tr.obs, tr.next_obs, tr.extras["z"] if cfg.include_z else None)
@@ -292,6 +301,8 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     if online:
       aux["buf_a"] = jnp.zeros((cap, n_in), jnp.float32)
       aux["a_state"] = jax.vmap(expert.env.reset)(jax.random.split(key, num_envs))
+      if carry_prev:  # A's last observation before its restart, the start of its next row
+        aux["a_prev"] = aux["a_state"].obs
     if te:
       aux |= dict(ep=jnp.zeros((num_envs,), jnp.int32), tbuf=jnp.zeros((cap_t, n_in), jnp.float32),
                   tptr=jnp.zeros((), jnp.int32), tsize=jnp.zeros((), jnp.int32))
@@ -299,11 +310,12 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
         aux["tbuf_a"] = jnp.zeros((cap_t, n_in), jnp.float32)
     return aux
 
-  def step_expert(a_state, extras, key):
+  def step_expert(a_state, a_prev, extras, key):
     """A restarts where B's episode starts (on B's z online, on a random goal of its own offline; its
     LL start by A's reset coin), takes one deterministic step, and restarts on B's current z where its
     own episode ended, from a fresh HL start (``cfg.expert_restart``) (``DiscriminatorEnv.reset`` /
-    ``step``). Its input row carries B's z either way."""
+    ``step``). Its input row carries B's z either way and, except at B's episode start, begins at
+    ``a_prev`` (``cfg.expert_prev_obs``). Returns (A's state, its observation before any restart, row)."""
     env, z, first = expert.env, extras["z"], extras["first"] > 0
     coin = jax.vmap(lambda k: env.task.physics_reset(k, env.agent, jnp.bool_(False), jnp.bool_(True)))(
         jax.random.split(key, z.shape[0]))
@@ -311,11 +323,13 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     z0 = z if cfg.data == "online" else jax.random.uniform(jax.random.fold_in(key, 1), z.shape, z.dtype, -d, d)
     s = jax.vmap(lambda s, z, f, c: restart_on_z(env, s, z, f, c))(a_state, z0, first, coin)
     nxt = jax.vmap(env.step)(s, expert.policy_fn(expert.params, s.obs))
-    x = disc_input(s.obs, nxt.next_obs, z if cfg.include_z else None)
+    prev = s.obs if a_prev is None else jnp.where(first[:, None], s.obs, a_prev)
+    x = disc_input(prev, nxt.next_obs, z if cfg.include_z else None)
     done = nxt.done > 0
     hl = cfg.expert_restart == "high"
+    last = nxt.next_obs  # before the restart (equal to the obs where A's episode goes on)
     nxt = jax.vmap(lambda s, z, d: restart_on_z(env, s, z, d, jnp.bool_(True), hl))(nxt, z, done)
-    return nxt, x
+    return nxt, last, x
 
   def one_update(params, opt_state, x, labels, lr):
     (loss, acc), g = jax.value_and_grad(lambda p: disc_loss(apply, p, x, labels), has_aux=True)(params)
@@ -336,7 +350,9 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     idx, ptr, size = _ring_slots(~held, aux["ptr"], aux["size"], cap)
     write = lambda b, i, x: b.at[i].set(x, mode="drop")
     if online:
-      out["a_state"], x_a = step_expert(aux["a_state"], transitions.extras, k_a)
+      out["a_state"], last, x_a = step_expert(aux["a_state"], aux.get("a_prev"), transitions.extras, k_a)
+      if carry_prev:
+        out["a_prev"] = last
       out["buf_a"] = write(aux["buf_a"], idx, x_a)
     buf = write(aux["buf"], idx, x_b)
     if te:
