@@ -64,8 +64,10 @@ def test_forward_and_reverse_differ(two_policies):
 
 def test_linear_anneal():
   s = jax.jit(linear_anneal(2.0, 1000))
-  for steps, want in [(0, 2.0), (250, 1.5), (500, 1.0), (750, 0.5), (1000, 0.0), (5000, 0.0)]:
-    assert float(s(jnp.int32(steps))) == pytest.approx(want, abs=1e-6), steps
+  # KLSAC.learn with kl_decay: kl_coef * max(1e-5, 1 - step / (kl_stop T)), never exactly 0
+  for steps, want in [(0, 2.0), (250, 1.5), (500, 1.0), (750, 0.5), (1000, 2e-5), (5000, 2e-5)]:
+    assert float(s(jnp.int32(steps))) == pytest.approx(want, rel=1e-6, abs=1e-9), steps
+  assert float(linear_anneal(2.0, 1000, floor=0.0)(jnp.int32(5000))) == 0.0
   assert float(linear_anneal(1.0, 0)(jnp.int32(0))) == 0.0
 
 

@@ -17,7 +17,6 @@ from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
-import optax
 
 from hdt.agents import networks as nets
 from hdt.agents.plugins import Plugin
@@ -83,13 +82,14 @@ def make_kl_term(policy_apply, mode: str = "forward", mean_only: bool = False):
 
 
 KL_REFERENCE = "kl_reference"  # its key in TrainState.aux
+KL_FLOOR = 1e-5  # the annealed weight's floor, as a fraction of beta (KLSAC.learn, kl_decay)
 KL_REFERENCE_OBS_NORM = "kl_reference_obs_norm"  # the reference's observation statistics, if it has some
 
 
 def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps: float,
               mode: str = "forward", mean_only: bool = False, reference_obs_norm: Any = None) -> Plugin:
   """The KL term as a training plug-in: ``beta(env_steps) * KL`` (:func:`linear_anneal` from ``beta``
-  to 0 at ``anneal_steps``) to a reference policy kept per seed in ``TrainState.aux["kl_reference"]``
+  to ``beta * KL_FLOOR`` at ``anneal_steps``) to a reference policy kept per seed in ``TrainState.aux["kl_reference"]``
   (and its observation statistics, if any, in ``aux["kl_reference_obs_norm"]``); every seed starts
   with ``reference_params`` (no seed axis). ``beta`` is its hyper ``kl_weight`` (vmappable over a grid,
   :mod:`hdt.agents.plugins`): the weight is ``kl_weight`` times the anneal from 1, which equals
@@ -110,8 +110,10 @@ def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps:
   )
 
 
-def linear_anneal(beta: float, end_steps: float) -> Callable[[jax.Array], jax.Array]:
-  """``schedule(env_steps)``: ``beta`` at 0 env steps, linearly down to 0 at ``end_steps``, then 0.
+def linear_anneal(beta: float, end_steps: float, floor: float = KL_FLOOR) -> Callable[[jax.Array], jax.Array]:
+  """``schedule(env_steps)``: ``beta max(floor, 1 - env_steps / end_steps)``, so ``beta`` at 0 env steps,
+  linearly down to ``beta floor`` at ``end_steps``, then constant (KLSAC.learn with ``kl_decay``:
+  ``kl_coef max(1e-5, 1 - step / (kl_stop T))``, never exactly 0; ``floor=0`` ends at 0).
 
   ``end_steps <= 0`` gives the constant 0 (no regularisation at all).
   """
@@ -119,5 +121,5 @@ def linear_anneal(beta: float, end_steps: float) -> Callable[[jax.Array], jax.Ar
   end_steps = int(round(end_steps))
   if end_steps <= 0 or beta == 0.0:
     return lambda env_steps: jnp.zeros((), jnp.float32)
-  sched = optax.linear_schedule(init_value=beta, end_value=0.0, transition_steps=end_steps)
-  return lambda env_steps: jnp.asarray(sched(env_steps), jnp.float32)
+  lo, end = jnp.float32(floor), jnp.float32(end_steps)
+  return lambda env_steps: jnp.float32(beta) * jnp.maximum(lo, 1.0 - jnp.asarray(env_steps, jnp.float32) / end)

@@ -2,8 +2,8 @@
 
 ``finetune_high(high=A's HL run, low=B's LL run, task)`` trains SAC on the HL env of ``task`` over B's
 frozen LL, starting the policy from A's HL and adding ``beta * KL(pi_B || pi_A)`` (pre-tanh diagonal
-Gaussians, closed form) to the actor loss, ``beta`` annealed linearly from ``kl`` to 0 over the first
-``anneal_frac`` of training. ``kl=0`` is plain finetuning.
+Gaussians, closed form) to the actor loss, ``beta`` annealed linearly from ``kl`` to ``1e-5 kl``
+(KLSAC's floor) over the first ``anneal_frac`` of training. ``kl=0`` is plain finetuning.
 
 The other baselines need no new code: "HL from scratch on B's LL" is
 :func:`hdt.transfer.pipeline.train_high`, "Full" is :func:`hdt.transfer.pipeline.train_full`.
@@ -133,7 +133,8 @@ def finetune_high(high: str | Path, low: str | Path, task: str, kl: float | None
 
   kl: initial weight beta of the KL term; None: the task's, as the paper (1 for Waypoint /
     manipulation, 0.01 for Maze and Steps, :func:`configs.finetune_params`); 0 = plain finetuning.
-  anneal_frac: beta goes linearly to 0 at ``anneal_frac * config.total_env_steps`` env steps.
+  anneal_frac: beta goes linearly to ``1e-5 kl`` at ``anneal_frac * config.total_env_steps`` env steps
+    (:func:`hdt.agents.kl.linear_anneal`).
   mode: "forward" KL(pi_B || pi_A) (paper) or "reverse" KL(pi_A || pi_B); mean_only: only the means
     are tied (the authors' kl_type="mean"), see :func:`hdt.agents.kl.make_kl_regularizer`.
   config: SAC config; default :func:`configs.finetune_config` of ``task`` (the task's finetuning
