@@ -2,7 +2,9 @@
 of the peg from vertical where it comes closest to the slot, per LL seed, over the zoo policies.
 
 The slot is 0.014 m wide (|x| < 0.007 between the capsule ends at y = -0.18) and the peg 0.01 m thick,
-so it fits only within about 24 degrees of vertical (0.01 / cos a < 0.014 - clearance)."""
+so it fits only within about 24 degrees of vertical (0.01 / cos a < 0.014 - clearance).
+
+  python experiments/insert_peg_angle.py [LOW ...]   # default: the PM's and 3Link's zoo insert LLs"""
 
 import sys
 from pathlib import Path
@@ -46,9 +48,10 @@ def scripted_3link(starts: int = 4) -> dict[str, int]:
 
 
 if __name__ == "__main__":
-  for low in ("zoo:arm_point/low_insert", "zoo:arm3/low_insert"):
+  lows = sys.argv[1:]  # insert LLs to measure (zoo names or run dirs); default the PM's and 3Link's, then the scripted arm
+  for low in lows or ("zoo:arm_point/low_insert", "zoo:arm3/low_insert"):
     for i, succ, ang, x, y in deepest("zoo:arm_point/insert", low):
       print(f"PM insert HL over {low} seed {i}: success {succ:.2f}, at the peg's deepest point "
             f"(median over episodes) angle from vertical {ang:.0f} deg, peg tip ({x:+.3f}, {y:+.3f})")
-  for label, n in scripted_3link().items():
+  for label, n in ({} if lows else scripted_3link()).items():
     print(f"scripted 3Link LL ({label}) down the slot's axis: inserted from {n} of 4 starts")

@@ -84,7 +84,7 @@ def grouped_bars(bars: list[dict], path, title: str = "", ylabel: str = "success
   ax.set_xticks(range(len(groups)), groups, fontsize=8)
   ax.set(title=title, ylabel=ylabel)
   ax.grid(alpha=0.3, axis="y")
-  ax.legend(fontsize=8)
+  ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: never over a bar
   return _save(fig, path)
 
 
