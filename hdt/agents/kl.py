@@ -3,7 +3,8 @@
 Used for KL-regularised finetuning (SPEC section 4): the actor loss of SAC gets
 ``beta(env_steps) * KL(pi_B(.|s) || pi_A(.|s))`` where both policies are the *pre-tanh* diagonal
 Gaussians ``N(loc, scale)`` their networks output (the tanh is the same bijection for both, so the KL
-of the squashed distributions equals the KL of the pre-tanh ones), and ``beta`` decays linearly to 0.
+of the squashed distributions equals the KL of the pre-tanh ones), and ``beta`` decays linearly to
+``1e-5 beta`` (KLSAC's floor).
 
 ``make_kl_regularizer`` returns a function with the ``actor_regularizer(policy_params, obs[, obs_norm]) -> scalar``
 signature of :func:`hdt.agents.sac.make_losses` / :func:`hdt.agents.train.make_train`;
@@ -89,11 +90,12 @@ KL_REFERENCE_OBS_NORM = "kl_reference_obs_norm"  # the reference's observation s
 def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps: float,
               mode: str = "forward", mean_only: bool = False, reference_obs_norm: Any = None) -> Plugin:
   """The KL term as a training plug-in: ``beta(env_steps) * KL`` (:func:`linear_anneal` from ``beta``
-  to ``beta * KL_FLOOR`` at ``anneal_steps``) to a reference policy kept per seed in ``TrainState.aux["kl_reference"]``
-  (and its observation statistics, if any, in ``aux["kl_reference_obs_norm"]``); every seed starts
-  with ``reference_params`` (no seed axis). ``beta`` is its hyper ``kl_weight`` (vmappable over a grid,
-  :mod:`hdt.agents.plugins`): the weight is ``kl_weight`` times the anneal from 1, which equals
-  :func:`linear_anneal` ``(beta, ...)`` bit for bit."""
+  to ``beta * KL_FLOOR`` at ``anneal_steps``) to a reference policy kept per seed in
+  ``TrainState.aux["kl_reference"]`` (and its observation statistics, if any, in
+  ``aux["kl_reference_obs_norm"]``); every seed starts with ``reference_params`` (no seed axis).
+  ``beta`` is its hyper ``kl_weight`` (vmappable over a grid, :mod:`hdt.agents.plugins`): the weight
+  is ``kl_weight`` times the anneal from 1, which equals :func:`linear_anneal` ``(beta, ...)`` bit for
+  bit."""
   term = make_kl_term(policy_apply, mode, mean_only)
   f32 = lambda tree: jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), tree)
   state = {KL_REFERENCE: f32(reference_params)}
