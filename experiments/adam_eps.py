@@ -24,7 +24,10 @@ from hdt.agents import discriminator as D
 from hdt.transfer.align import collect_offline
 
 
-def tf1_adam(b1=0.9, b2=0.999, eps=1e-8) -> optax.GradientTransformation:
+EPS = 1e-8  # both optimisers' default epsilon (TF1's and optax's)
+
+
+def tf1_adam(b1=0.9, b2=0.999, eps=EPS) -> optax.GradientTransformation:
   """tf.compat.v1.train.AdamOptimizer's direction (before its learning rate)."""
   def init(params):
     zeros = jax.tree_util.tree_map(jnp.zeros_like, params)
@@ -78,7 +81,7 @@ def main(argv=None):
     (params, st), root_v = jax.jit(lambda: jax.lax.scan(body, (params0, opt.init(params0)), (steps, keys)))()
     return params, np.asarray(root_v)
 
-  (p_optax, rv_optax), (p_tf1, _) = train(optax.scale_by_adam()), train(tf1_adam())
+  (p_optax, rv_optax), (p_tf1, _) = train(optax.scale_by_adam(eps=EPS)), train(tf1_adam())
   x_test = jnp.concatenate([x_b[-held:], x_a[-held:]])
   lab = np.r_[np.full(held, D.B_LABEL), np.full(held, D.A_LABEL)]
   d = {n: np.asarray(jax.nn.sigmoid(apply(p, x_test))).reshape(-1) for n, p in (("optax", p_optax), ("tf1", p_tf1))}
@@ -89,8 +92,8 @@ def main(argv=None):
              held_out_acc=acc, max_abs_dD=float(np.max(np.abs(d["optax"] - d["tf1"]))),
              mean_abs_dD=float(np.mean(np.abs(d["optax"] - d["tf1"]))),
              max_abs_dparam=float(dp.max()), max_abs_param=float(np.abs(flat(p_optax)).max()),
-             min_sqrt_v_over_eps=float(rv_optax.min() / 1e-8),
-             min_sqrt_v_over_eps_after_100=float(rv_optax[100:].min() / 1e-8))
+             min_sqrt_v_over_eps=float(rv_optax.min() / EPS),
+             min_sqrt_v_over_eps_after_100=float(rv_optax[100:].min() / EPS))
   print(json.dumps(out, indent=1))
   return out
 
