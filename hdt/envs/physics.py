@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx, rollout
+from mujoco import rollout
 
 from hdt.envs import native_ffi
 
@@ -73,6 +73,17 @@ def mjx_model_copy(model: mujoco.MjModel, options: dict | None = None) -> mujoco
   return m
 
 
+def _import_mjx():
+  """``mujoco.mjx``, imported on first use: it is slow to import (BENCHMARKS.md, "Start-up"), and the
+  native backend does not need it. It prints "Failed to import warp ..." to stdout when the
+  optional warp package is absent (hdt does not use it), so stdout is muted while it imports."""
+  import contextlib
+  import io
+  with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
+  return mjx
+
+
 class MJXPhysics:
   """MJX (``impl='jax'``): pure JAX, the accelerator path."""
 
@@ -81,11 +92,12 @@ class MJXPhysics:
   def __init__(self, model: mujoco.MjModel, frame_skip: int, options: dict | None = None):
     self.mj_model = model
     self.frame_skip = frame_skip
+    self._mjx = mjx = _import_mjx()
     self.model = mjx.put_model(mjx_model_copy(model, options), impl="jax")
     self._data0 = mjx.make_data(self.model)
 
   def forward(self, time, qpos, qvel) -> PhysicsState:
-    d = mjx.forward(self.model, self._data0.replace(time=time, qpos=qpos, qvel=qvel))
+    d = self._mjx.forward(self.model, self._data0.replace(time=time, qpos=qpos, qvel=qvel))
     return PhysicsState(d.time, d.qpos, d.qvel, d.sensordata, d.qacc_warmstart)
 
   def step(self, ps: PhysicsState, ctrl: jax.Array) -> PhysicsState:
@@ -93,7 +105,7 @@ class MJXPhysics:
     # vmap, runs until the slowest env converges (measured: ant 79 env steps/s instead of thousands).
     d = self._data0.replace(time=ps.time, qpos=ps.qpos, qvel=ps.qvel, qacc_warmstart=ps.warmstart,
                             ctrl=ctrl)
-    d = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: mjx.step(self.model, d), d)
+    d = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._mjx.step(self.model, d), d)
     return PhysicsState(d.time, d.qpos, d.qvel, d.sensordata, d.qacc_warmstart)
 
 
