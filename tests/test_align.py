@@ -370,10 +370,10 @@ def test_align_imitates_a_best_by_default(point_low, tmp_path, monkeypatch):
   key = jax.random.PRNGKey(0)
   taus = {w: collect_offline(a, 64, key, num_envs=16, which=w) for w in ("best", "final")}
   assert not np.allclose(taus["best"], taus["final"])  # the two really act differently
-  real_collect = al.collect_offline
+  real_inputs = al._policy_inputs  # A's "fixed" data, from the LL align_stage loaded once
   for kw, want in [({}, "best"), ({"imitate_params": "final"}, "final")]:
     got = {}
-    monkeypatch.setattr(al, "collect_offline", lambda *a_, **k: got.update(tau=real_collect(*a_, **k)) or got["tau"])
+    monkeypatch.setattr(al, "_policy_inputs", lambda *a_, **k: got.update(tau=real_inputs(*a_, **k)) or got["tau"])
     monkeypatch.setattr(al, "run_stage", lambda stage, options: got.update(meta=stage.meta))
     align_low("point", imitate=a, config=cfg, disc=D.DiscConfig(buffer_size=500, data="fixed"), seeds=1, n_offline=64,
               quiet=True, **kw)

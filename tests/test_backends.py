@@ -20,9 +20,10 @@ HEXAPOD, ARM5 = str(ROBOTS / "hexapod.xml"), str(ROBOTS / "arm5.xml")
 SCENES = [("point", "maze"), ("arm_point", "push1"), ("arm2", "push1"), ("arm3", "insert"),
           ("arm4", "push1"), ("quadruped", "reach"), ("ant", "reach"), ("ant3", "reach"),
           ("ant2", "reach"), (HEXAPOD, "reach"), (ARM5, "push1")]
-# Tracing MJX under vmap is most of each case's 20-30 s; the variants of an agent family already
-# covered here (arm2 beside arm3/arm4/arm5, ant3 and ant2 beside ant) run with `-m slow` only.
-VARIANTS = {"arm2", "ant3", "ant2"}
+# Tracing MJX under vmap is most of each case's 20-40 s; the variants of an agent family already
+# covered here (arm2 and arm4 beside arm3 and arm5, their block scene beside arm_point's and arm5's;
+# ant3 and ant2 beside ant) run with `-m slow` only.
+VARIANTS = {"arm2", "arm4", "ant3", "ant2"}
 LEGGED = {"ant": (0.05, 1.5), "ant3": (0.05, 1.5), "ant2": (0.05, 1.5), "quadruped": (0.01, 0.1),
           HEXAPOD: (0.05, 1.5)}
 

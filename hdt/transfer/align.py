@@ -22,6 +22,7 @@ from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
 # The authors imitate A's best model (hierarchical.py DiscriminatorEnv: load(policy, ..., best=True);
 # final when the run kept no best).
 IMITATE_PARAMS = "best"
+OFFLINE_ENVS = 64  # envs of A's LL run side by side to collect the "fixed" data
 
 
 def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
@@ -69,8 +70,8 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
     al = disc_lib.make_alignment(disc, None, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale, expert=expert)
   else:
-    tau_a = collect_offline(imitate, n_offline, jax.random.PRNGKey(offline_seed), backend=backend,
-                            seed_index=imitate_seed, include_z=disc.include_z, which=imitate_params)
+    tau_a = _policy_inputs(card_a.make_env("reach", backend), fn_a, params_a["policy"], n_offline,
+                           jax.random.PRNGKey(offline_seed), OFFLINE_ENVS, disc.include_z)
     al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale)
   meta = dict(card.to_json(), aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
@@ -105,7 +106,7 @@ def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):
   return (lambda tau: net.apply(params["discriminator"], np.asarray(tau, np.float32) / scale)), meta
 
 
-def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: int = 64,
+def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: int = OFFLINE_ENVS,
                     seed_index: int = 0, include_z: bool = True, which: str = IMITATE_PARAMS) -> np.ndarray:
   """(n, 6) discriminator inputs ``(g - s_t, g - s_{t+1}, z)`` ((n, 4) without z) of A's saved LL
   (deterministic actions) on its reach task (uniform goals in its goal box, the LL training episode
@@ -113,7 +114,11 @@ def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: i
   A's "best" or "final" parameters."""
   params, meta, fn = load_low(low_run_dir, seed_index, which)
   env = PolicyCard.from_json(meta, low_run_dir).make_env("reach", backend)
-  policy = params["policy"]
+  return _policy_inputs(env, fn, params["policy"], n, key, num_envs, include_z)
+
+
+def _policy_inputs(env, fn, policy, n: int, key, num_envs: int, include_z: bool) -> np.ndarray:
+  """:func:`collect_offline` for an LL already loaded (``fn(policy, obs)``) and its reach ``env``."""
   steps = -(-int(n) // num_envs)
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
   size = disc_lib.TAU_SIZE + (disc_lib.Z_SIZE if include_z else 0)
