@@ -639,3 +639,20 @@ def test_progress_rate_and_eta_count_only_this_process_steps(monkeypatch, capsys
   runner.print_progress(1_000_000, label="low", start=900_000)(910_000, {})
   line = capsys.readouterr().err
   assert "910000/1000000 steps 1000/s ETA 90s" in line, line
+
+
+def test_an_alignment_saved_before_a_disc_field_existed_resumes_under_its_old_value(monkeypatch):
+  """A run saved before a DiscConfig field existed ran with that field's earlier behaviour
+  (disc_lib.ADDED_FIELDS): asking for that value resumes it, the new default is named as a difference.
+  Checked once end to end: a point alignment written by 40024db (before expert_prev_obs) resumed with
+  --disc-expert-prev-obs post_restart and repeated its final evaluation."""
+  def info(**disc):
+    return dict(config={"total_env_steps": 10}, seeds=[0],
+                meta=dict(level="low", discriminator=dataclasses.asdict(DiscConfig(**disc))))
+  saved = info()
+  for field in disc_lib.ADDED_FIELDS:
+    del saved["meta"]["discriminator"][field]
+  monkeypatch.setattr(runner.ckpt, "load_state_info", lambda source: saved)
+  runner._check_resumable(Path("old"), info(**disc_lib.ADDED_FIELDS))
+  with pytest.raises(ckpt.CheckpointError, match="expert_prev_obs: saved 'post_restart', requested 'pre_restart'"):
+    runner._check_resumable(Path("old"), info())

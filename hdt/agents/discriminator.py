@@ -57,6 +57,9 @@ DATA_MODES = ("offline", "online", "fixed")
 
 
 WEIGHT = "disc_weight"  # the alignment plug-in's vmappable hyper-parameter (w_init)
+# DiscConfig fields added after alignment runs had been saved, each with the value that gives those
+# runs' behaviour: a saved run without the field resumes under that value (hdt.transfer.runner).
+ADDED_FIELDS = {"expert_restart": "low", "expert_prev_obs": "post_restart"}
 
 @dataclasses.dataclass(frozen=True)
 class DiscConfig:

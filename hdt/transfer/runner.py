@@ -18,6 +18,7 @@ from typing import Any, Callable, Sequence
 import jax
 import numpy as np
 
+from hdt.agents import discriminator as disc_lib
 from hdt.agents import train as sac_train
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SWEEPABLE, SACConfig
@@ -343,7 +344,7 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
           f"cannot resume {source} with total_env_steps={budget(info)}: it has already trained {done} env "
           f"steps; give --total-env-steps >= {done}")
     saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)))
-  saved = _same_low_as_slim_copy(saved, info)
+  saved = _same_low_as_slim_copy(_with_added_disc_fields(saved), info)
   # meta["sac"] repeats the config; a state saved before the card format was recorded has format 1
   no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m not in ("sac", FORMAT_KEY)} if k == "meta"
                           else d.get(k)) for k in info}
@@ -360,6 +361,16 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
         f"cannot resume from {source}: the saved run differs from the requested one in "
         f"{'; '.join(diffs[:6])}{' ...' if len(diffs) > 6 else ''}. Resume with the saved settings "
         f"(see {ckpt.state_dir(source) / 'state.json'}) or start a new run in another out= directory")
+
+
+def _with_added_disc_fields(saved: dict) -> dict:
+  """``saved`` with the discriminator fields added since it was written set to the values it ran
+  with (:data:`hdt.agents.discriminator.ADDED_FIELDS`): such a run resumes under those values, and
+  a request for others is named as a difference."""
+  meta = saved.get("meta") or {}
+  if not isinstance(meta.get("discriminator"), dict):
+    return saved
+  return dict(saved, meta=dict(meta, discriminator={**disc_lib.ADDED_FIELDS, **meta["discriminator"]}))
 
 
 def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
