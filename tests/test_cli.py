@@ -98,10 +98,21 @@ def test_existing_run_is_not_overwritten(runs, capsys):
   assert (runs / "low" / "metrics.csv").read_text() == before
 
 
+def test_mjx_is_imported_only_by_its_backend_and_quietly():
+  """The native backend never imports mujoco.mjx (slow to import); the MJX backend does, muting its
+  "Failed to import warp" notice on stdout (the CLI's output)."""
+  code = ("import sys, hdt; assert 'mujoco.mjx' not in sys.modules; hdt.envs.make('point', 'reach'); "
+          "assert 'mujoco.mjx' not in sys.modules; hdt.envs.make('point', 'reach', backend='mjx'); "
+          "assert 'mujoco.mjx' in sys.modules")
+  out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+  assert out.returncode == 0, out.stderr[-2000:]
+  assert "Failed to import" not in out.stdout
+
+
 def test_help_of_every_command():
   out = subprocess.run([sys.executable, "-m", "hdt.cli", "--help"], capture_output=True, text=True)
   assert out.returncode == 0 and all(c in out.stdout for c in COMMANDS)
-  assert "Failed to import" not in out.stdout + out.stderr  # mujoco.mjx's warp notice is muted
+  assert "Failed to import" not in out.stdout + out.stderr
   for argv in (["train", "low"], ["train", "high"], ["train", "full"], ["align"], ["finetune"], ["eval"],
                ["sweep"], ["reproduce"], ["report"], ["quickstart"]):
     with pytest.raises(SystemExit) as e:
