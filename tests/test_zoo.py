@@ -111,7 +111,7 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
 def test_committed_zoo_stays_a_few_megabytes():
   """The zoo is committed: it keeps what is loaded from it (zoo.py) and no more."""
   size = sum(p.stat().st_size for p in zoo.ZOO_DIR.rglob("*") if p.is_file())
-  # 8 MB for 24 entries (session 16: 7.0 MB); one replay buffer or Adam state kept by mistake is far more
+  # 8 MB for 25 entries (session 17: 7.4 MB); one replay buffer or Adam state kept by mistake is far more
   assert size < 8e6, f"zoo/ holds {size / 1e6:.1f} MB; export policies only (zoo.export slims them)"
   for info in zoo.entries():
     if info["level"] == "low":  # one set per seed: the best, or the final of an LL that kept no best
