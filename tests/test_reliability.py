@@ -653,6 +653,7 @@ def test_an_alignment_saved_before_a_disc_field_existed_resumes_under_its_old_va
   for field in disc_lib.ADDED_FIELDS:
     del saved["meta"]["discriminator"][field]
   monkeypatch.setattr(runner.ckpt, "load_state_info", lambda source: saved)
-  runner._check_resumable(Path("old"), info(**disc_lib.ADDED_FIELDS))
+  legacy = {"discriminator": disc_lib.ADDED_FIELDS}  # align_stage's Stage.legacy_meta (test_defaults checks)
+  runner._check_resumable(Path("old"), info(**disc_lib.ADDED_FIELDS), legacy_meta=legacy)
   with pytest.raises(ckpt.CheckpointError, match="expert_prev_obs: saved 'post_restart', requested 'pre_restart'"):
-    runner._check_resumable(Path("old"), info())
+    runner._check_resumable(Path("old"), info(), legacy_meta=legacy)

@@ -82,7 +82,8 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
               discriminator=dataclasses.asdict(disc))
   return Stage(env, config, meta, f"align {agent}<-{meta_a['agent']}", plugins=(al.plugin,),
                # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
-               save_extra=lambda ts: {"discriminator": ts.aux["params"]}, point_meta=_point_meta)
+               save_extra=lambda ts: {"discriminator": ts.aux["params"]}, point_meta=_point_meta,
+               legacy_meta={"discriminator": disc_lib.ADDED_FIELDS})
 
 
 def _point_meta(meta: dict, hyper: dict) -> dict:

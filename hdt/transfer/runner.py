@@ -18,7 +18,6 @@ from typing import Any, Callable, Sequence
 import jax
 import numpy as np
 
-from hdt.agents import discriminator as disc_lib
 from hdt.agents import train as sac_train
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SWEEPABLE, SACConfig
@@ -77,6 +76,10 @@ class Stage:
   # point_meta(meta, {plug-in hyper name: value}) -> the meta.json of a grid point that sets the
   # plug-ins' hyper (hdt.agents.plugins), e.g. its KL weight; default: meta with them as "plugin_hyper"
   point_meta: Callable[[dict, dict], dict] | None = None
+  # {meta key: {field: value}}: fields of a meta.json section added after runs were saved, with the
+  # value in effect before (e.g. hdt.agents.discriminator.ADDED_FIELDS): a run saved without them
+  # resumes under those values, and a request for others is named as a difference
+  legacy_meta: dict[str, dict] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,7 +150,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
   infos = [dict(config=dataclasses.asdict(c), meta=dict(m, sac=dataclasses.asdict(c)) if grid else m,
                 seeds=seeds) for c, m in zip(configs, metas)]
   if source is not None:
-    _check_resumable(source, infos[0], extendable=not stage.plugins)
+    _check_resumable(source, infos[0], extendable=not stage.plugins, legacy_meta=stage.legacy_meta)
   S = len(seeds)
   part = (lambda tree, p: tree) if len(points) == 1 else (
       lambda tree, p: jax.tree.map(lambda x: x[p * S:(p + 1) * S], tree))
@@ -319,13 +322,14 @@ def _save_steps(config: SACConfig, save_every) -> int:
   return int(save_every)
 
 
-def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None:
+def _check_resumable(source: Path, info: dict, extendable: bool = False, legacy_meta: dict | None = None) -> None:
   """Refuses (reading only) to resume ``source`` if its run was started with another configuration,
   run metadata or seeds than ``info`` describes, or a checkpoint it depends on changed since.
 
   ``extendable``: a larger ``total_env_steps`` continues the run past its end (a finished run too),
   exactly as an uninterrupted run of the larger budget; only without plug-ins, whose schedules
-  (discriminator weight and lr, KL weight) are fractions of the budget."""
+  (discriminator weight and lr, KL weight) are fractions of the budget. ``legacy_meta``:
+  :attr:`Stage.legacy_meta`."""
   saved = ckpt.load_state_info(source)
   for key, kind in (("config", dict), ("meta", dict), ("seeds", list)):
     if not isinstance(saved.get(key), kind):
@@ -344,7 +348,7 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
           f"cannot resume {source} with total_env_steps={budget(info)}: it has already trained {done} env "
           f"steps; give --total-env-steps >= {done}")
     saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)))
-  saved = _same_low_as_slim_copy(_with_added_disc_fields(saved), info)
+  saved = _same_low_as_slim_copy(_with_legacy_fields(saved, legacy_meta or {}), info)
   # meta["sac"] repeats the config; a state saved before the card format was recorded has format 1
   no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m not in ("sac", FORMAT_KEY)} if k == "meta"
                           else d.get(k)) for k in info}
@@ -363,14 +367,14 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False) -> None
         f"(see {ckpt.state_dir(source) / 'state.json'}) or start a new run in another out= directory")
 
 
-def _with_added_disc_fields(saved: dict) -> dict:
-  """``saved`` with the discriminator fields added since it was written set to the values it ran
-  with (:data:`hdt.agents.discriminator.ADDED_FIELDS`): such a run resumes under those values, and
-  a request for others is named as a difference."""
-  meta = saved.get("meta") or {}
-  if not isinstance(meta.get("discriminator"), dict):
-    return saved
-  return dict(saved, meta=dict(meta, discriminator={**disc_lib.ADDED_FIELDS, **meta["discriminator"]}))
+def _with_legacy_fields(saved: dict, legacy_meta: dict[str, dict]) -> dict:
+  """``saved`` with the meta fields added since it was written (``legacy_meta``, see
+  :attr:`Stage.legacy_meta`) set to the values it ran with."""
+  meta = dict(saved.get("meta") or {})
+  for key, fields in legacy_meta.items():
+    if isinstance(meta.get(key), dict):
+      meta[key] = {**fields, **meta[key]}
+  return dict(saved, meta=meta)
 
 
 def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
