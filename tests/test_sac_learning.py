@@ -238,7 +238,9 @@ import hdt.cache
 from hdt.agents.sac import SACConfig
 from hdt.agents.train import make_train, run
 from toy_env import PointGoal
-traces = []
+traces, compiles = [], []
+jax.monitoring.register_event_duration_secs_listener(
+    lambda name, secs, **kw: compiles.append(1) if name == "/jax/core/compile/backend_compile_duration" else None)
 class Counted(PointGoal):
   def step(self, state, action):
     traces.append(1)  # Python runs only while tracing
@@ -249,17 +251,17 @@ env = Counted()
 cfg = SACConfig(hidden_sizes=(32, 32), batch_size=32, buffer_size=2000, num_envs=2, learning_starts=50,
                 total_env_steps=1000, steps_per_chunk=250, num_eval_episodes=2)
 for key in {keys!r}:  # groups of programs in one process
-  n = len(traces)
+  n, c = len(traces), len(compiles)
   res = run(env, cfg, [0], cache_key=key, trainer=make_train(env, cfg))
-  print(key, "traced" if len(traces) > n else "loaded", flush=True)
+  print(key, "traced" if len(traces) > n else "loaded", "compiled" if len(compiles) > c else "no compile", flush=True)
   print("HISTORY", {{k: np.asarray(v).tolist() for k, v in res.history.items() if k != "walltime"}}, flush=True)
 """
 
 
 def test_cached_programs_load_without_tracing(tmp_path):
   """With the compile cache on and a cache_key, run() saves its compiled programs; a later process
-  with the same key loads them (the env is not traced again) and trains identically, for two groups
-  of programs in one process. The programs are saved after a first process filled the persistent
+  with the same key loads them (the env is not traced again, nothing is compiled) and trains
+  identically, for two groups of programs in one process. The programs are saved after a first process filled the persistent
   compile cache: one re-serialised from a cache hit lacked its kernels on XLA:CPU and failed at run
   time ("Function wrapped_slice not found"), so saved programs are compiled afresh."""
   import os
@@ -277,10 +279,11 @@ def test_cached_programs_load_without_tracing(tmp_path):
 
   # fills the persistent compile cache; one group does, as both groups lower to the same programs
   plain, h_plain = proc("0", both[:1])
-  assert plain == ["toy point goal traced"] and not (tmp_path / "aot").exists()
+  assert plain == ["toy point goal traced compiled"] and not (tmp_path / "aot").exists()
   cold, h_cold = proc("1")
-  assert cold == ["toy point goal traced", "another env traced"]
-  assert len(list((tmp_path / "aot").glob("*.pkl"))) == 6  # init, run_chunk, evaluate per key
+  assert cold == ["toy point goal traced compiled", "another env traced compiled"]
+  assert len(list((tmp_path / "aot").glob("*.pkl"))) == 8  # init, run_chunk, evaluate, eval_keys per key
   warm, h_warm = proc("1")
-  assert warm == ["toy point goal loaded", "another env loaded"]
+  # a warm start neither traces nor compiles anything, eager ops included (seed and evaluation keys)
+  assert warm == ["toy point goal loaded no compile", "another env loaded no compile"]
   assert h_warm == h_cold and h_cold[0] == h_plain[0]  # loaded programs train identically

@@ -13,6 +13,7 @@ the deterministic action is ``tanh(loc)``. Actions live in ``[-1, 1]^action_size
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Any, Callable, Sequence
 
@@ -120,19 +121,27 @@ def make_sac_networks(
   policy = GaussianPolicy(tuple(hidden_sizes), action_size, activation)
   q = TwinQ(critic_hidden_sizes, activation)
   v = MLP(critic_hidden_sizes, 1, activation)
-  dummy_obs = jnp.zeros((1, observation_size), jnp.float32)
-  dummy_act = jnp.zeros((1, action_size), jnp.float32)
-  policy_shapes = jax.eval_shape(policy.init, jax.random.PRNGKey(0), dummy_obs)
-  q_shapes = jax.eval_shape(q.init, jax.random.PRNGKey(0), dummy_obs, dummy_act)
-  if value_net:
-    q_shapes = {"q": q_shapes, "v": jax.eval_shape(v.init, jax.random.PRNGKey(0), dummy_obs)}
+  dummy_obs = jax.ShapeDtypeStruct((1, observation_size), jnp.float32)
+  dummy_act = jax.ShapeDtypeStruct((1, action_size), jnp.float32)
+  key_shape = jax.ShapeDtypeStruct((2,), jnp.uint32)
+
+  # traced on first use only: a run whose programs were loaded (hdt.cache.compiled) never calls init
+  @functools.cache
+  def policy_shapes():
+    return jax.eval_shape(policy.init, key_shape, dummy_obs)
+
+  @functools.cache
+  def q_shapes():
+    shapes = jax.eval_shape(q.init, key_shape, dummy_obs, dummy_act)
+    return {"q": shapes, "v": jax.eval_shape(v.init, key_shape, dummy_obs)} if value_net else shapes
+
   norm = lambda obs, obs_norm: obs if obs_norm is None else normalizer.normalize(obs_norm, obs)
 
   def policy_init(key):
-    return lecun_uniform_init(policy_shapes, key)
+    return lecun_uniform_init(policy_shapes(), key)
 
   def q_init(key):
-    return lecun_uniform_init(q_shapes, key)
+    return lecun_uniform_init(q_shapes(), key)
 
   def policy_apply(params, obs, obs_norm=None):
     return policy.apply(params, norm(obs, obs_norm))

@@ -16,6 +16,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 
@@ -41,8 +42,8 @@ def capacity(state: ReplayState) -> int:
 
 
 def make_transition_spec(observation_size: int, action_size: int) -> Transition:
-  """One float32 transition of zeros (the row layout of the buffer)."""
-  z = lambda *s: jnp.zeros(s, jnp.float32)
+  """One float32 transition of zeros (the row layout of the buffer; numpy: no device op to compile)."""
+  z = lambda *s: np.zeros(s, np.float32)
   return Transition(
       obs=z(observation_size),
       action=z(action_size),

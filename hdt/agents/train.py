@@ -225,14 +225,16 @@ def make_train(
   if extras_fn is not None:
     one = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
     spec = spec.replace(extras=jax.tree_util.tree_map(
-        lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(extras_fn, one, one)))
+        lambda s: np.zeros(s.shape, s.dtype), jax.eval_shape(extras_fn, one, one)))
 
   # Which keys of TrainState.aux each plug-in owns (from the shapes of its initial state).
-  agent_shape = jax.eval_shape(functools.partial(init_sac_state, networks, config), jax.random.PRNGKey(0))
+  # traced only for a plug-in with an init: a warm start of a plain run traces nothing here
+  agent_shape = functools.cache(lambda: jax.eval_shape(functools.partial(init_sac_state, networks, config),
+                                                       jax.random.PRNGKey(0)))
   owned = []
   for p in plugins:
     state = {} if p.init is None else jax.eval_shape(lambda k, a: p.init(k, a)[1], jax.random.PRNGKey(0),
-                                                     agent_shape)
+                                                     agent_shape())
     if not isinstance(state, dict):
       raise TypeError(f"plug-in {p.name!r}: its initial state must be a dict (its keys in TrainState.aux), "
                       f"got {type(state).__name__}")
@@ -480,9 +482,16 @@ def seed_list(seeds: int | Sequence[int]) -> list[int]:
   return [int(s) for s in out]
 
 
-def seed_keys(seeds: Sequence[int]) -> jax.Array:
-  """The training keys :func:`run` uses: ``PRNGKey(seed)`` stacked over seeds."""
-  return jnp.stack([jax.random.PRNGKey(int(s)) for s in seeds])
+def seed_keys(seeds: Sequence[int]) -> np.ndarray:
+  """The training keys :func:`run` uses: ``PRNGKey(seed)`` stacked over seeds, as host numpy.
+
+  For the default threefry keys and seeds in [0, 2**31) the key is ``[0, seed]`` (jax's
+  ``threefry_seed``), built here without the small programs eager ``PRNGKey`` compiles: a warm
+  start (:func:`hdt.cache.compiled`) then compiles nothing."""
+  seeds = [int(s) for s in seeds]
+  if jax.config.jax_default_prng_impl == "threefry2x32" and all(0 <= s < 2**31 for s in seeds):
+    return np.array([[0, s] for s in seeds], np.uint32).reshape(len(seeds), 2)
+  return np.stack([np.asarray(jax.random.PRNGKey(s)) for s in seeds])
 
 
 def eval_key(seed_key: jax.Array, index: int) -> jax.Array:
@@ -494,6 +503,7 @@ class VmappedFns(NamedTuple):
   init: Callable  # (keys[S]) -> TrainState[S]
   run_chunk: Callable  # TrainState[S] (, hyper[S]) -> (TrainState[S], metrics[S]); donates the state
   evaluate: Callable  # (policy_params[S], keys[S], obs_norm[S] or None) -> metrics[S]
+  eval_keys: Callable  # (seed keys[S], int32 index) -> keys[S] of that evaluation (eval_key)
 
 
 @functools.lru_cache(maxsize=16)
@@ -511,6 +521,7 @@ def vmapped(trainer: Trainer, num_seeds: int = 1, hyper: bool = False) -> Vmappe
       init=jax.jit(over(trainer.init)),
       run_chunk=jax.jit(over(chunk, 2 if hyper else 1), donate_argnums=0),
       evaluate=jax.jit(over(trainer.evaluate, 3)),
+      eval_keys=jax.jit(jax.vmap(eval_key, in_axes=(0, None))),
   )
 
 
@@ -548,6 +559,8 @@ def _ahead_of_time(fns: VmappedFns, key: str, keys: jax.Array, hyper: dict | Non
       run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
       evaluate=cache.compiled(fns.evaluate, key + "|evaluate",
                               lambda: (ts_a().agent.policy_params, keys_a, ts_a().agent.obs_norm)),
+      eval_keys=cache.compiled(fns.eval_keys, key + "|eval_keys",
+                               lambda: (keys_a, jax.ShapeDtypeStruct((), jnp.int32))),
   )
 
 
@@ -638,7 +651,7 @@ def run(
   fns = vmapped(trainer, n_runs, hyper is not None)
   # Several devices (GPUs, hosts, or forced CPU host devices): each gets its share of the seeds.
   sharding = sharding_lib.seed_sharding(n_runs)
-  keys = sharding_lib.shard(jnp.tile(seed_keys(seeds), (len(points), 1)), sharding)
+  keys = sharding_lib.shard(np.tile(seed_keys(seeds), (len(points), 1)), sharding)
   if cache_key is not None and sharding is None:
     fns = _ahead_of_time(fns, f"{cache_key}|runs={n_runs}|hyper={sorted(hyper or {})}", keys, hyper)
   if initial_state is None:
@@ -668,7 +681,7 @@ def run(
 
   def evaluate(index, step):
     nonlocal best
-    k = jax.vmap(eval_key, in_axes=(0, None))(keys, index)
+    k = fns.eval_keys(keys, np.int32(index))
     ev = sharding_lib.to_host(eval_fn(ts.agent.policy_params, k, ts.agent.obs_norm))
     ev = {f"eval/{name}": np.asarray(v) for name, v in ev.items()}
     ev["eval/env_steps"] = np.full(n_runs, step)
