@@ -16,7 +16,12 @@ PATH = os.path.join(HERE, "results.json")
 
 
 def update(values: dict, source: str, path: str = PATH, load: float | None = None) -> dict:
-  """Merge ``values`` (plain numbers) into results.json; records where and when each key came from."""
+  """Merge ``values`` (plain numbers) into results.json; records where and when each key came from.
+  Under ``XLA_FLAGS`` (an experiment, not the default setup) nothing is merged."""
+  if os.environ.get("XLA_FLAGS"):
+    print(f"results.json not updated: XLA_FLAGS={os.environ['XLA_FLAGS']!r} is set (headline numbers use the "
+          f"default XLA setup); unset it to record {sorted(values)}")
+    return {}
   data = {}
   if os.path.exists(path):
     with open(path) as f:

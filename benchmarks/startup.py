@@ -85,7 +85,8 @@ def main() -> None:
   if "arm3" in summary:
     sys.path.insert(0, HERE)
     from results import update
-    update({"warm_startup_s_arm3_ll": summary["arm3"].get("warm"), "cold_startup_s_arm3_ll": summary["arm3"]["cold"]},
+    measured = {f"{k}_startup_s_arm3_ll": v for k, v in summary["arm3"].items()}  # --warm 0 keeps the warm key
+    update(measured,
            f"benchmarks/startup.py --agents {' '.join(args.agents)} --warm {args.warm}: arm3 LL, 8 envs x 8 "
            f"updates x 50 steps per chunk, time before the first training step (median)")
 
