@@ -700,7 +700,7 @@ QUICKSTART_TRANSFERS = (
      ".96 ± .02"),
     ("push1", "4Link HL (zoo:arm4/push1_500k), zero-shot", "zoo:arm4/push1_500k", "zoo:arm_point/low", False,
      ".26 ± .17"),
-    ("push1", "PM HL (zoo:arm_point/push1), zero-shot", "zoo:arm_point/push1", "zoo:arm3/low_paper", False,
+    ("push1", "PM HL (zoo:arm_point/push1_1p2m), zero-shot", "zoo:arm_point/push1_1p2m", "zoo:arm3/low_paper", False,
      ".17 ± .08"),
     ("push1", "uniform random sub-goals", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", True, "—"),
     ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low", False, "483 ± 39"),
