@@ -703,8 +703,8 @@ QUICKSTART_TRANSFERS = (
     ("push1", "PM HL (zoo:arm_point/push1_1p2m), zero-shot", "zoo:arm_point/push1_1p2m", "zoo:arm3/low_paper", False,
      ".17 ± .08"),
     ("push1", "uniform random sub-goals", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", True, "—"),
-    ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low", False, "483 ± 39"),
-    ("waypoint", "uniform random sub-goals", "here", "zoo:ant/low", True, "—"),
+    ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low_2p5m", False, "483 ± 39"),
+    ("waypoint", "uniform random sub-goals", "here", "zoo:ant/low_2p5m", True, "—"),
 )
 
 
