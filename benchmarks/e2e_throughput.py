@@ -5,7 +5,9 @@
 Times whole training chunks (``Trainer.run_chunk``: the native MuJoCo env steps, acting, replay
 writes and samples, and the gradient updates; the periodic evaluation is not included) of the
 paper's LL networks on the real envs (``configs.low_config(agent)``: arm3 [128,96] batch 100, ant
-[400,300] batch 100), for a few settings of envs x updates per step and vmapped seeds.
+[400,300] batch 100), for a few settings of envs x updates per step and vmapped seeds. Seeds split over
+the CPU's devices, one per core, as the CLI runs them (``hdt.agents.sharding.use_cpu_cores``; set
+``JAX_NUM_CPU_DEVICES=1`` for one device).
 
 GFLOP/s counts the matmuls of the SAC updates only (``sac_throughput.update_flops``: forward, weight
 and input gradients of actor, twin critic and target pass); acting (one policy forward per env step)
@@ -29,13 +31,14 @@ sys.path.insert(0, HERE)
 from sac_throughput import matmul_gflops, update_flops  # noqa: E402
 import results  # noqa: E402
 
+from hdt.agents import sharding  # noqa: E402
 from hdt.agents import train as sac_train  # noqa: E402
 from hdt.envs import make  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
 
 # (envs, updates per env-step batch, seeds): the paper's 1 env x 1 update, the 8 x 8 used for the zoo's
-# paper-budget LLs, and that with 3 vmapped seeds (how they were trained)
-SETTINGS = [(1, 1, 1), (8, 8, 1), (8, 8, 3)]
+# paper-budget LLs, and that with 3 vmapped seeds (how they were trained), 2 and 4 (split over 2 cores)
+SETTINGS = [(1, 1, 1), (8, 8, 1), (8, 8, 2), (8, 8, 3), (8, 8, 4)]
 
 
 def measure(agent: str, envs: int, updates: int, seeds: int, chunks: int) -> dict:
@@ -61,6 +64,7 @@ def measure(agent: str, envs: int, updates: int, seeds: int, chunks: int) -> dic
   flops = update_flops(tuple(cfg.hidden_sizes), cfg.batch_size, int(env.observation_size), int(env.action_size))
   return dict(agent=agent, hidden=list(cfg.hidden_sizes), batch=cfg.batch_size, obs=int(env.observation_size),
               act=int(env.action_size), envs=envs, updates_per_step=updates, seeds=seeds,
+              devices=len(ts.env_steps.sharding.device_set),
               chunk_s=t, first_chunk_s=compile_s, env_steps_per_s=env_steps, env_steps_per_s_per_seed=env_steps / seeds,
               updates_per_s=n_updates, mflop_per_update=flops / 1e6, gflops=n_updates * flops / 1e9)
 
@@ -71,6 +75,7 @@ def main() -> None:
   p.add_argument("--chunks", type=int, default=3)
   p.add_argument("--out", default=os.path.join(HERE, "e2e_throughput.json"))
   args = p.parse_args()
+  sharding.use_cpu_cores()
   load0 = os.getloadavg()
   peak = matmul_gflops()
   rows = []
@@ -79,11 +84,13 @@ def main() -> None:
       r = measure(agent, envs, updates, seeds, args.chunks)
       r["peak_fraction"] = r["gflops"] / peak
       rows.append(r)
-      print(f"{agent:5s} {envs} env x {updates} upd x {seeds} seeds: {r['env_steps_per_s']:8.0f} env steps/s "
+      print(f"{agent:5s} {envs} env x {updates} upd x {seeds} seeds on {r['devices']} devices: "
+            f"{r['env_steps_per_s']:8.0f} env steps/s "
             f"({r['env_steps_per_s_per_seed']:.0f}/seed), {r['updates_per_s']:7.0f} updates/s, "
             f"{r['gflops']:5.1f} GFLOP/s = {100 * r['peak_fraction']:4.1f}% of {peak:.0f}", flush=True)
   peak_end = matmul_gflops()
   out = dict(machine=dict(loadavg_at_start=load0, loadavg_at_end=os.getloadavg(), cpus=os.cpu_count(),
+                          devices=len(jax.devices()),
                           matmul_gflops_start=peak, matmul_gflops_end=peak_end), rows=rows)
   with open(args.out + ".tmp", "w") as f:
     json.dump(out, f, indent=1)
@@ -93,7 +100,8 @@ def main() -> None:
                   if a in ("arm3", "ant")},
                  "benchmarks/e2e_throughput.py: whole run_chunk on the real env, paper LL network, best of "
                  + ", ".join(f"{e}env x {u}upd x {s}seeds" for e, u, s in SETTINGS)
-                 + "; update matmul FLOPs / jnp.dot 1024 peak in the same process", load=load0[0])
+                 + f" (seeds split over {len(jax.devices())} CPU devices); update matmul FLOPs / jnp.dot 1024 peak "
+                 "in the same process", load=load0[0])
 
 
 if __name__ == "__main__":

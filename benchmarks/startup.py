@@ -34,9 +34,11 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 
 def child(agent: str) -> dict:
   t0 = time.perf_counter()
+  from hdt.agents.sharding import use_cpu_cores
   from hdt.cache import enable_compile_cache
   from hdt.transfer import configs, pipeline, runner
   t_import = time.perf_counter() - t0
+  use_cpu_cores()  # as the CLI
   enable_compile_cache()
   stamps = []
   cfg = configs.low_config(agent, num_envs=8, updates_per_step=8, steps_per_chunk=50, total_env_steps=3 * 400)

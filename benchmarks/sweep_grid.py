@@ -33,7 +33,9 @@ LRS = [1e-4, 2e-4, 3e-4, 5e-4, 7e-4, 1e-3, 2e-3, 3e-3]
 def child(mode: str, steps: int) -> dict:
   t_start = time.perf_counter()
   from hdt.agents import train as sac_train
+  from hdt.agents.sharding import use_cpu_cores
   from hdt.envs import make
+  use_cpu_cores()  # as the CLI: the 16 runs split over the cores
   from hdt.transfer import configs
   env = make("point", "reach")
   cfg = configs.low_config("point", total_env_steps=steps, steps_per_chunk=steps // 4, num_envs=1,
@@ -46,6 +48,7 @@ def child(mode: str, steps: int) -> dict:
   t_end = time.perf_counter()
   per_chunk = [b - a for a, b in zip(chunk_end, chunk_end[1:])]
   return dict(mode=mode, runs=int(res.history["eval/return"].shape[0]), run_s=t_end - t_run,
+              devices=len(res.state.env_steps.sharding.device_set),
               steady_chunk_s=sorted(per_chunk)[len(per_chunk) // 2], in_process_s=t_end - t_start)
 
 

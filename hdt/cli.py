@@ -777,10 +777,11 @@ def _interrupted() -> str:
 def main(argv=None) -> int:
   from hdt.transfer.checkpoint import CheckpointError
   from hdt.transfer.rundir import RunDirError
-  from hdt.agents.sharding import initialize_distributed
+  from hdt.agents.sharding import initialize_distributed, use_cpu_cores
   from hdt.cache import enable_compile_cache
   try:
     args = build_parser().parse_args(argv)
+    use_cpu_cores()  # vmapped seeds on all CPU cores (before any JAX operation)
     initialize_distributed()  # no-op unless HDT_DISTRIBUTED=1 (one process per host)
     enable_compile_cache()  # a re-run of the same configuration loads its programs
     return COMMANDS[args.cmd](args)

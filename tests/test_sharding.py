@@ -1,4 +1,5 @@
-"""Seeds sharded across devices (forced CPU host devices) give the same runs as on one device."""
+"""Seeds sharded across devices (forced CPU host devices) give the same runs as on one device; the CLI
+splits the CPU into devices."""
 
 import json
 import os
@@ -8,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from hdt.agents.sharding import cpu_cores
 
 SCRIPT = """
 import json, sys, numpy as np, jax
@@ -20,14 +23,14 @@ else:
     from hdt.envs import make; env = make("point", "reach")
 cfg = SACConfig(hidden_sizes=(16, 16), num_envs=4, steps_per_chunk=50, total_env_steps=400, learning_starts=100,
                 num_eval_episodes=2, batch_size=16)
-r = run(env, cfg, [0, 1, 2, 3])
+r = run(env, cfg, {seeds!r})
 print("RESULT", json.dumps(dict(devices=len(jax.devices()), shards=len(r.state.env_steps.sharding.device_set),
       ret=np.asarray(r.history["eval/return"]).tolist(), critic=np.asarray(r.history["critic_loss"]).tolist())))
 """
 
 
-def _run(env, devices):
-  code = SCRIPT.format(tests=str(Path(__file__).parent), env=env)
+def _run(env, devices, seeds=(0, 1, 2, 3)):
+  code = SCRIPT.format(tests=str(Path(__file__).parent), env=env, seeds=list(seeds))
   e = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
   out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=e, timeout=600)
   line = [l for l in out.stdout.splitlines() if l.startswith("RESULT")]
@@ -44,3 +47,34 @@ def test_seed_axis_sharded_over_two_devices_matches_one(env):
   np.testing.assert_allclose(two["ret"], one["ret"], rtol=1e-4, atol=1e-3)
   np.testing.assert_allclose(two["critic"], one["critic"], rtol=1e-4, atol=1e-4)
   assert len({round(r[-1], 3) for r in one["ret"]}) == 4  # four different seeds
+
+
+def test_seeds_use_the_most_devices_that_split_them_evenly():
+  three = _run("toy", 3, seeds=(0, 1, 2))
+  four = _run("toy", 3)
+  assert (three["devices"], three["shards"]) == (3, 3)
+  assert (four["devices"], four["shards"]) == (3, 2)  # 4 seeds over 2 of the 3 devices
+
+
+def _devices_after(code, **env):
+  e = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")} | env
+  out = subprocess.run([sys.executable, "-c", "import jax; from hdt.agents.sharding import use_cpu_cores\n" + code
+                        + "\nprint('RESULT', len(jax.devices()))"], capture_output=True, text=True, env=e, timeout=300)
+  return out.returncode, out.stdout
+
+
+def test_use_cpu_cores_splits_the_cpu_unless_too_late_or_chosen():
+  n = cpu_cores()
+  assert _devices_after("print(use_cpu_cores())")[1] == f"{n}\nRESULT {n}\n"
+  assert _devices_after("jax.numpy.zeros(1); print(use_cpu_cores())")[1] == "None\nRESULT 1\n"
+  assert _devices_after("print(use_cpu_cores())", JAX_NUM_CPU_DEVICES="2")[1] == "None\nRESULT 2\n"
+
+
+def test_cli_trains_seeds_on_separate_cpu_devices(tmp_path):
+  e = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")}
+  code = ("import sys, jax; from hdt.cli import main; r = main(sys.argv[1:]); "
+          "print('RESULT', r, len(jax.devices()))")
+  out = subprocess.run([sys.executable, "-c", code, "train", "low", "--agent", "point", "--preset", "smoke",
+                        "--seeds", "2", "--out", str(tmp_path / "run"), "--quiet"],
+                       capture_output=True, text=True, env=e, timeout=600)
+  assert f"RESULT 0 {cpu_cores()}" in out.stdout, out.stderr[-2000:]

@@ -5,6 +5,10 @@ Seeds are independent: the vmapped training functions run under ``shard_map`` on
 each device runs its own seeds with no communication. Across
 hosts, call :func:`initialize_distributed` first (``jax.distributed.initialize``); every process
 builds the same keys and the mesh spans all processes' devices.
+
+On a CPU, :func:`use_cpu_cores` (the CLI calls it) splits the machine into several JAX devices: XLA:CPU
+runs the small matmuls of one device's program on about one core, so seeds on separate devices use
+the others.
 """
 
 from __future__ import annotations
@@ -24,13 +28,39 @@ def initialize_distributed() -> None:
     jax.distributed.initialize()
 
 
-def seed_mesh(num_seeds: int) -> Mesh | None:
-  """A 1-D "seeds" mesh over all devices, or None with one device or when the seeds do not split
-  evenly (then everything stays on the default device)."""
-  devices = jax.devices()
-  if len(devices) == 1 or num_seeds % len(devices):
+CPU_DEVICES_FLAG = "xla_force_host_platform_device_count"
+
+
+def cpu_cores() -> int:
+  """The cores this process may run on (its affinity mask, e.g. under taskset or a container)."""
+  return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def use_cpu_cores(num_devices: int | None = None) -> int | None:
+  """Makes JAX's CPU backend ``num_devices`` devices (default: one per core). Returns the number set, or
+  None when JAX already ran an operation (too late to change) or the user chose (``JAX_NUM_CPU_DEVICES``,
+  or the XLA flag in ``XLA_FLAGS``). More devices than cores helps matmul-bound runs (3 LL seeds on 3
+  devices on 2 cores) but slows physics-bound ones (HLs), so the default does not oversubscribe."""
+  if os.environ.get("JAX_NUM_CPU_DEVICES") or CPU_DEVICES_FLAG in os.environ.get("XLA_FLAGS", ""):
     return None
-  return Mesh(np.asarray(devices), ("seeds",))
+  n = num_devices or cpu_cores()
+  try:
+    jax.config.update("jax_num_cpu_devices", n)
+  except RuntimeError:  # backends already initialised
+    return None
+  return n
+
+
+def seed_mesh(num_seeds: int) -> Mesh | None:
+  """A 1-D "seeds" mesh over the most devices (of one process) that split the seeds evenly, or None
+  when that is one device (then everything stays on the default device). Across processes the mesh
+  spans all devices, or is None when the seeds do not split over all of them."""
+  devices = jax.devices()
+  if jax.process_count() > 1:
+    n = len(devices) if num_seeds % len(devices) == 0 else 1
+  else:
+    n = max(d for d in range(1, min(len(devices), num_seeds) + 1) if num_seeds % d == 0)
+  return None if n <= 1 else Mesh(np.asarray(devices[:n]), ("seeds",))
 
 
 def over_seeds(fn, mesh: Mesh | None, num_args: int = 1):
