@@ -62,7 +62,10 @@ def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
   if path.exists():
     try:
       with open(path, "rb") as f:
-        return serialize_executable.deserialize_and_load(*pickle.load(f))
+        program, device_ids = pickle.load(f)
+      by_id = {d.id: d for d in jax.devices()}
+      # on the devices it was compiled for: by default it would expect one shard per device
+      return serialize_executable.deserialize_and_load(*program, execution_devices=[by_id[i] for i in device_ids])
     except Exception:  # noqa: BLE001 - damaged or stale file: compile afresh and replace it
       pass
   lowered = jitted.lower(*abstract_args())
@@ -72,7 +75,8 @@ def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
   path.parent.mkdir(parents=True, exist_ok=True)
   fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
   with os.fdopen(fd, "wb") as f:
-    pickle.dump(serialize_executable.serialize(program), f)
+    devices = {d.id for sh in jax.tree.leaves(program.input_shardings) for d in sh.device_set}
+    pickle.dump((serialize_executable.serialize(program), sorted(devices)), f)
   os.replace(tmp, path)  # atomic: a concurrent run never reads half a file
   return program
 

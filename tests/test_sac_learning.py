@@ -271,7 +271,8 @@ def test_cached_programs_load_without_tracing(tmp_path):
 
   def proc(aot, keys=both):
     script = _CACHE_SCRIPT.format(tests=os.path.dirname(__file__), jax_dir=str(tmp_path / "jax"), keys=keys)
-    env = dict(os.environ, HDT_CACHE_DIR=str(tmp_path), HDT_AOT_CACHE=aot)
+    # two CPU devices, as the CLI makes on two cores: a loaded 1-device program must not expect two shards
+    env = dict(os.environ, HDT_CACHE_DIR=str(tmp_path), HDT_AOT_CACHE=aot, JAX_NUM_CPU_DEVICES="2")
     out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.splitlines()
