@@ -7,14 +7,20 @@ compiled (taken from the hdt env object):
 
 * obs = [obs_lo, goal - point], obs_lo = agent joint positions (cos/sin for the arms, without the
   global x, y for the point mass), joint velocities (+ clipped touch sensors, rangefinders if any);
-* reset: qpos0 (clipped to the joint limits) + U(-n, n) on hinge/slide joints, qvel ~ n N(0, 1);
+* physics reset (hdt's ``AgentTaskEnv.initial_physics``, redrawn at every physics reset): qpos0 + the LL
+  offset + half-widths x U(-1, 1) (hdt's ``_start_half``, ``_start_offset``), clipped to the joint limits,
+  free-joint quaternions normalised; qvel = noise x N(0, 1) for legged agents, x U(-1, 1) otherwise;
   goal = point + U(-delta_max, delta_max)^2;
-* reward: nav ``progress / dt - ctrl_cost |a|^2 (+ survive bonus)``; manip
-  ``-|g - tip| - ctrl_cost |a|^2 + c 1{|g - tip| < eps}``;
+* reward: nav ``progress / dt - ctrl_cost |u|^2 (+ survive bonus)``; manip
+  ``-|g - tip| - ctrl_cost |u|^2 + c 1{|g - tip| < eps}``, u the raw control (the action scaled to the
+  actuators' control range);
 * an episode lasts ``ll_horizon`` steps (gymnasium ``truncated``; SB3 bootstraps through it, as hdt's
   discount 1 does); a fall is ``terminated``. At the next ``reset()`` the robot goes back to its
   initial physics only after a fall or with probability ``reset_prob``, otherwise it keeps its
   state and gets a new goal (hdt's auto-reset).
+
+Run ``python benchmarks/time_to_quality.py --check`` after any change of hdt's env: it steps both from
+the same state and prints the largest observation and reward differences.
 
 Differences from hdt that remain: hdt stores the physics state in float32 between env steps (this
 env keeps MuJoCo's float64), and the random streams differ (numpy vs jax keys).
@@ -40,7 +46,9 @@ class ReachGymEnv(gym.Env):
     self.dt = float(self.model.opt.timestep * a.frame_skip)
     self.horizon = a.ll_horizon
     self._qpos_idx, self._qvel_idx = e._qpos_idx, e._qvel_idx
-    self._qpos_noise = np.asarray(e._qpos_noise, np.float64)
+    self._start_half = np.asarray(e._start_half, np.float64)
+    self._start_offset = np.asarray(e._start_offset, np.float64)
+    self._quats = [int(i) for i in e._quats]
     self._qvel_noise = np.asarray(e._qvel_noise, np.float64)
     self._qpos_lo, self._qpos_hi = np.asarray(e._qpos_lo, np.float64), np.asarray(e._qpos_hi, np.float64)
     self._qpos0 = np.asarray(e._qpos0, np.float64)
@@ -51,7 +59,6 @@ class ReachGymEnv(gym.Env):
     n_obs = int(e.observation_size)
     self.observation_space = gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
     self.action_space = gym.spaces.Box(-1.0, 1.0, (int(e.action_size),), np.float32)
-    self._init_state = None  # (qpos, qvel) of the first reset: hdt's cached initial physics
     self._need_physics_reset = True
     self._steps = 0
     self.goal = np.zeros(2)
@@ -74,12 +81,15 @@ class ReachGymEnv(gym.Env):
     dm = self.spec_.delta_max
     self.goal = self.point() + self.np_random.uniform(-dm, dm, size=2)
 
-  def set_state(self, qpos, qvel, goal):
-    """For the equivalence check against hdt: put the robot and the goal somewhere."""
+  def set_state(self, qpos, qvel, goal, sensordata=None):
+    """For the equivalence check against hdt: put the robot and the goal somewhere. ``sensordata``: hdt's,
+    which after a step lags qpos by one substep (MuJoCo computes sensors before integrating), where
+    ``mj_forward`` would bring it up to date."""
     self.data.qpos[:], self.data.qvel[:] = qpos, qvel
     self.data.time = 0.0
     mujoco.mj_forward(self.model, self.data)
-    self._init_state = (np.array(qpos, np.float64), np.array(qvel, np.float64))
+    if sensordata is not None:
+      self.data.sensordata[:] = sensordata
     self.goal = np.asarray(goal, np.float64)
     self._steps = 0
     self._need_physics_reset = False
@@ -96,15 +106,13 @@ class ReachGymEnv(gym.Env):
   def reset(self, *, seed=None, options=None):
     super().reset(seed=seed)
     a, d = self.spec_, self.data
-    if self._init_state is None:
-      n = a.init_noise
-      qpos = self._qpos0 + self._qpos_noise * self.np_random.uniform(-n, n, size=self._qpos0.shape)
-      qpos = np.clip(qpos, self._qpos_lo, self._qpos_hi)
-      qvel = self._qvel_noise * n * self.np_random.standard_normal(self._qvel_noise.shape)
-      self._init_state = (qpos, qvel)
-      self._need_physics_reset = True
     if self._need_physics_reset:
-      d.qpos[:], d.qvel[:] = self._init_state
+      qpos = self._qpos0 + self._start_offset + self._start_half * self.np_random.uniform(-1, 1, self._qpos0.shape)
+      qpos = np.clip(qpos, self._qpos_lo, self._qpos_hi)
+      for i in self._quats:
+        qpos[i:i + 4] /= np.linalg.norm(qpos[i:i + 4])
+      draw = self.np_random.standard_normal if a.legged else (lambda n: self.np_random.uniform(-1, 1, n))
+      d.qpos[:], d.qvel[:] = qpos, self._qvel_noise * draw(self._qvel_noise.shape)
       d.time = 0.0
       mujoco.mj_forward(self.model, d)
     self._sample_goal()
@@ -119,7 +127,7 @@ class ReachGymEnv(gym.Env):
     for _ in range(self.frame_skip):
       mujoco.mj_step(m, d)
     p = self.point()
-    ctrl_cost = a.ctrl_cost * float(np.sum(np.square(action)))
+    ctrl_cost = a.ctrl_cost * float(np.sum(np.square(d.ctrl)))  # of the raw control, as hdt's Reach.reward
     dist = float(np.linalg.norm(self.goal - p))
     if a.family == "nav":
       to_goal = self.goal - prev

@@ -695,13 +695,10 @@ def cmd_quickstart(args) -> int:
 
 # Rows of the transfer table: (task, label, HL run ("here": the one trained here), LL run, uniform
 # random sub-goals instead of the HL's, paper's number: Table 1's zero-shot and own-HL cells).
-QUICKSTART_TRANSFERS = (
-    ("push1", "3Link's own HL (zoo:arm3/push1_500k)", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", False,
-     ".96 ± .02"),
-    ("push1", "4Link HL (zoo:arm4/push1_500k), zero-shot", "zoo:arm4/push1_500k", "zoo:arm_point/low", False,
-     ".26 ± .17"),
-    ("push1", "PM HL (zoo:arm_point/push1_1p2m), zero-shot", "zoo:arm_point/push1_1p2m", "zoo:arm3/low_paper", False,
-     ".17 ± .08"),
+QUICKSTART_TRANSFERS = (  # task, HL (named after its run), HL run, LL run, random sub-goals, paper
+    ("push1", "3Link's own HL", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", False, ".96 ± .02"),
+    ("push1", "4Link HL, zero-shot", "zoo:arm4/push1_500k", "zoo:arm_point/low", False, ".26 ± .17"),
+    ("push1", "PM HL, zero-shot", "zoo:arm_point/push1_1p2m", "zoo:arm3/low_paper", False, ".17 ± .08"),
     ("push1", "uniform random sub-goals", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", True, "—"),
     ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low_2p5m", False, "483 ± 39"),
     ("waypoint", "uniform random sub-goals", "here", "zoo:ant/low_2p5m", True, "—"),
@@ -733,6 +730,8 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   for task, label, hl_run, ll_run, random, paper in QUICKSTART_TRANSFERS:
     if ll_run[len(zoo.PREFIX):] not in available:
       continue  # that LL is not in this checkout's zoo
+    if hl_run.startswith(zoo.PREFIX) and not random:
+      label = f"{label} ({hl_run})"
     policy = compose(high.run_dir if hl_run == "here" else hl_run, ll_run, box="scale")
     ev = evaluate(random_actions(policy) if random else policy, task, episodes=episodes)
     metric = ev["metric"]  # the task's headline (Task.headline)

@@ -78,3 +78,11 @@ def test_cli_trains_seeds_on_separate_cpu_devices(tmp_path):
                         "--seeds", "2", "--out", str(tmp_path / "run"), "--quiet"],
                        capture_output=True, text=True, env=e, timeout=600)
   assert f"RESULT 0 {cpu_cores()}" in out.stdout, out.stderr[-2000:]
+
+
+def test_a_run_that_cannot_use_every_device_says_how_to():
+  code = "from hdt.transfer.runner import _device_hint as h; h(3, 'low arm3'); h(4, 'low arm3'); h(1, 'one')"
+  rc, out = _devices_after(code, JAX_NUM_CPU_DEVICES="2")
+  assert rc == 0 and out.splitlines() == [
+      "low arm3: 3 runs split over 1 of the 2 devices; 2 or 4 runs would use all of them (or set "
+      "JAX_NUM_CPU_DEVICES=3: faster for small-network LLs, slower for HLs; BENCHMARKS.md)", "RESULT 2"]

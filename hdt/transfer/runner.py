@@ -18,6 +18,7 @@ from typing import Any, Callable, Sequence
 import jax
 import numpy as np
 
+from hdt.agents import sharding
 from hdt.agents import train as sac_train
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SWEEPABLE, SACConfig
@@ -177,6 +178,8 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
                               None if best is None else part(best, p))
 
     start = 0 if ts is None else int(np.max(jax.device_get(ts.env_steps)))
+    if not options.quiet:
+      _device_hint(len(points) * S, stage.label)
     progress = (options.progress or functools.partial(print_progress, start=start))(
         config.total_env_steps, options.quiet, stage.label)
     try:
@@ -200,6 +203,19 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
           _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p)
       results.append(RunResult(run_dir, res_p.params, res_p.history, infos[p]["meta"], res_p.best))
   return results
+
+
+def _device_hint(runs: int, label: str) -> None:
+  """One line when the runs cannot use every device (e.g. 3 seeds on a 2-core CPU's 2 devices)."""
+  devices = len(jax.devices())
+  mesh = sharding.seed_mesh(runs)
+  used = 1 if mesh is None else mesh.size
+  if runs > 1 and used < devices:
+    lo = runs - runs % devices
+    other = " or ".join(str(n) for n in (lo, lo + devices) if n > 0)
+    cpu = (f" (or set JAX_NUM_CPU_DEVICES={runs}: faster for small-network LLs, slower for HLs; BENCHMARKS.md)"
+           if jax.devices()[0].platform == "cpu" else "")
+    print(f"{label}: {runs} runs split over {used} of the {devices} devices; {other} runs would use all of them{cpu}")
 
 
 @contextlib.contextmanager
