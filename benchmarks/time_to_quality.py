@@ -61,7 +61,7 @@ TASKS = {
     "arm3": dict(threshold=0.05, extra_thresholds=(0.1,), eval_every=2048, max_steps=401_408,
                  sbx=dict(net_arch=[128, 96], learning_rate=3e-4, batch_size=100, buffer_size=250_000)),
     # 0.27 m: the authors' epsilon_low (bot_transfer/envs/ant.py); the paper's 2.5M-step budget
-    "ant": dict(threshold=0.27, extra_thresholds=(0.5,), eval_every=8192, max_steps=2_500_000,
+    "ant": dict(threshold=0.27, extra_thresholds=(0.5,), eval_every=8192, max_steps=2_506_752,  # 306 x 8192
                 sbx=dict(net_arch=[400, 300], learning_rate=8e-4, batch_size=100, buffer_size=1_000_000)),
 }
 QUICK = {"point": dict(threshold=1.5, extra_thresholds=(), eval_every=1024, max_steps=8192),

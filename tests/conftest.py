@@ -3,6 +3,9 @@ import os
 # Compiled XLA programs are cached across test runs (and CI steps) to keep the suite fast.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/hdt/jax"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
+# One CPU device per test process, whichever test runs JAX first (the CLI would make one per core, so
+# a worker's device count would depend on test order); tests/test_sharding.py runs several in subprocesses.
+os.environ.setdefault("JAX_NUM_CPU_DEVICES", "1")
 
 import pytest  # noqa: E402
 

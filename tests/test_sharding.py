@@ -31,7 +31,8 @@ print("RESULT", json.dumps(dict(devices=len(jax.devices()), shards=len(r.state.e
 
 def _run(env, devices, seeds=(0, 1, 2, 3)):
   code = SCRIPT.format(tests=str(Path(__file__).parent), env=env, seeds=list(seeds))
-  e = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+  e = {k: v for k, v in os.environ.items() if k != "JAX_NUM_CPU_DEVICES"}  # conftest pins 1
+  e["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
   out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=e, timeout=600)
   line = [l for l in out.stdout.splitlines() if l.startswith("RESULT")]
   assert line, out.stderr[-2000:]
