@@ -81,9 +81,8 @@ def main() -> None:
       rows = [dict(m=m, k=k, n=n, gflops=rate(m, k, n, s, iters=max(50, 2000 // s))) for m, k, n in layers(obs, act, hidden, batch)]
       flops = [2 * r["m"] * r["k"] * r["n"] for r in rows]
       ceiling = sum(flops) / sum(f / r["gflops"] for f, r in zip(flops, rows))
-      mesh = sharding.seed_mesh(s)
       out["nets"][f"{agent}_seeds{s}"] = dict(hidden=hidden, batch=batch, seeds=s, ceiling_gflops=ceiling,
-                                              devices=1 if mesh is None else mesh.size,
+                                              devices=sharding.seed_devices(s),
                                               ceiling_fraction_of_peak=ceiling / peak, shapes=rows)
       print(f"{agent} {list(hidden)} b{batch} x {s} seeds: matmul ceiling {ceiling:.1f} GFLOP/s = "
             f"{100 * ceiling / peak:.1f}% of the {peak:.0f} GFLOP/s 1024^2 peak", flush=True)

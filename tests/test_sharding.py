@@ -29,10 +29,14 @@ print("RESULT", json.dumps(dict(devices=len(jax.devices()), shards=len(r.state.e
 """
 
 
+def _env(**extra):
+  """This process's environment without a device choice (conftest pins 1), plus ``extra``."""
+  return {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")} | extra
+
+
 def _run(env, devices, seeds=(0, 1, 2, 3)):
   code = SCRIPT.format(tests=str(Path(__file__).parent), env=env, seeds=list(seeds))
-  e = {k: v for k, v in os.environ.items() if k != "JAX_NUM_CPU_DEVICES"}  # conftest pins 1
-  e["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+  e = _env(XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
   out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=e, timeout=600)
   line = [l for l in out.stdout.splitlines() if l.startswith("RESULT")]
   assert line, out.stderr[-2000:]
@@ -58,9 +62,9 @@ def test_seeds_use_the_most_devices_that_split_them_evenly():
 
 
 def _devices_after(code, **env):
-  e = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")} | env
   out = subprocess.run([sys.executable, "-c", "import jax; from hdt.agents.sharding import use_cpu_cores\n" + code
-                        + "\nprint('RESULT', len(jax.devices()))"], capture_output=True, text=True, env=e, timeout=300)
+                        + "\nprint('RESULT', len(jax.devices()))"], capture_output=True, text=True, env=_env(**env),
+                       timeout=300)
   return out.returncode, out.stdout
 
 
@@ -72,12 +76,11 @@ def test_use_cpu_cores_splits_the_cpu_unless_too_late_or_chosen():
 
 
 def test_cli_trains_seeds_on_separate_cpu_devices(tmp_path):
-  e = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")}
   code = ("import sys, jax; from hdt.cli import main; r = main(sys.argv[1:]); "
           "print('RESULT', r, len(jax.devices()))")
   out = subprocess.run([sys.executable, "-c", code, "train", "low", "--agent", "point", "--preset", "smoke",
                         "--seeds", "2", "--out", str(tmp_path / "run"), "--quiet"],
-                       capture_output=True, text=True, env=e, timeout=600)
+                       capture_output=True, text=True, env=_env(), timeout=600)
   assert f"RESULT 0 {cpu_cores()}" in out.stdout, out.stderr[-2000:]
 
 

@@ -63,6 +63,12 @@ def seed_mesh(num_seeds: int) -> Mesh | None:
   return None if n <= 1 else Mesh(np.asarray(devices[:n]), ("seeds",))
 
 
+def seed_devices(num_seeds: int) -> int:
+  """How many devices :func:`seed_mesh` splits ``num_seeds`` over (1 when it does not split them)."""
+  mesh = seed_mesh(num_seeds)
+  return 1 if mesh is None else mesh.size
+
+
 def over_seeds(fn, mesh: Mesh | None, num_args: int = 1):
   """``fn`` (already vmapped over seeds) run per device on its own seeds with ``shard_map``, so
   host callbacks inside (the native physics backend) also run per shard, on local data."""

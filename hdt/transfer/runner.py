@@ -207,14 +207,13 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
 
 def _device_hint(runs: int, label: str) -> None:
   """One line when the runs cannot use every device (e.g. 3 seeds on a 2-core CPU's 2 devices)."""
-  devices = len(jax.devices())
-  mesh = sharding.seed_mesh(runs)
-  used = 1 if mesh is None else mesh.size
+  all_devices = jax.devices()
+  devices, used = len(all_devices), sharding.seed_devices(runs)
   if runs > 1 and used < devices:
     lo = runs - runs % devices
     other = " or ".join(str(n) for n in (lo, lo + devices) if n > 0)
     cpu = (f" (or set JAX_NUM_CPU_DEVICES={runs}: faster for small-network LLs, slower for HLs; BENCHMARKS.md)"
-           if jax.devices()[0].platform == "cpu" else "")
+           if all_devices[0].platform == "cpu" else "")
     print(f"{label}: {runs} runs split over {used} of the {devices} devices; {other} runs would use all of them{cpu}")
 
 
