@@ -261,6 +261,8 @@ def build_parser() -> argparse.ArgumentParser:
   _add_dataclass_options(sw, DiscConfig, "disc-", "discriminator (align)", "Algorithm 1's discriminator (SPEC 4).")
   sw.add_argument("--set", action="append", metavar="KEY=VALUE", default=[])
   sw.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
+  _add_dataclass_options(sw, SACConfig, "", "SAC hyper-parameters (every grid point)",
+                         "Default: as `hdt train` (the paper's value for the agent/level, then --preset's budget).")
   _common(sw, "sweep directory, one run per grid point (default: runs/sweep-<level>)")
   sw.add_argument("--overwrite", action="store_true", help="replace an existing sweep in --out as a whole")
 
@@ -549,6 +551,10 @@ def cmd_sweep(args) -> int:
     grid[name] = [_grid_value(name, v, fields.get(name)) for v in values.split(",")]
   if not grid:
     raise CLIError("give at least one --grid FIELD=V1,V2")
+  both = sorted(set(grid) & set(_overrides(args, SACConfig, "")))
+  if both:
+    raise CLIError(f"{', '.join('--' + b.replace('_', '-') for b in both)} is also swept by --grid: "
+                   f"give each field once, as an option or in the grid")
   if args.level in ("low", "full", "align") and not args.agent:
     raise CLIError(f"sweep {args.level} needs --agent")
   if args.level in ("high", "full", "finetune") and not args.task:
@@ -605,8 +611,8 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc: dict
                                     mean_only=args.mean_only, reference_params=args.reference_params, **low),
            "align": lambda: dict(agent=args.agent, imitate=args.imitate, n_offline=args.n_offline,
                                  imitate_params=args.imitate_params, **disc)}[args.level]()
-  # points differing only in learning rates, tau, gamma, reward scale or the plug-in weights train as one
-  # vmapped program
+  # points differing only in SWEEPABLE fields (learning rates, tau, gamma, reward scale, target entropy)
+  # or the plug-in weights train as one vmapped program
   results = pipeline.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)
   metric = get_task(args.task if level != "low" else "reach").headline_column
   rows = []

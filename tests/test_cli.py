@@ -297,6 +297,8 @@ BAD_CLI = {
     "grid field twice": ([*SWEEP, *FRESH, "--grid", "actor_lr=1e-3", "--grid", "actor_lr=1e-4"], "is given twice"),
     "grid without =": ([*SWEEP, *FRESH, "--grid", "actor_lr"], "expected FIELD=V1,V2"),
     "no grid": ([*SWEEP, *FRESH], "give at least one --grid"),
+    "grid and option": ([*SWEEP, *FRESH, "--grid", "actor_lr=1e-3,3e-4", "--actor-lr", "1e-3"],
+                        "--actor-lr is also swept by --grid"),
     "sweep without agent": (["sweep", "low", "--grid", "actor_lr=1e-3", *FRESH], "sweep low needs --agent"),
     "sweep high without LL": (["sweep", "high", "--task", "waypoint", "--grid", "actor_lr=1e-3", *FRESH],
                               "sweep high needs --low"),
@@ -371,6 +373,23 @@ def test_eval_and_resume_refuse_an_hl_whose_ll_changed(runs, tmp_path, capsys):
   err = capsys.readouterr().err.strip()
   assert "a checkpoint it depends on changed since it started (low content hash differs" in err, err
   assert tree_hash(high) == before
+
+
+def test_sweep_sac_options_apply_to_every_grid_point(monkeypatch, tmp_path):
+  """`hdt sweep` takes `hdt train`'s SAC options: fixed for every point, the grid's field varying."""
+  from types import SimpleNamespace
+  from hdt.transfer import pipeline
+  seen = []
+
+  def fake_sweep(level, runs, seeds, **kw):  # what would be trained, without training it
+    seen.extend(runs)
+    return [SimpleNamespace(history={"eval/success_max": np.zeros((seeds, 1))}) for _ in runs]
+
+  monkeypatch.setattr(pipeline, "sweep", fake_sweep)
+  assert main(["sweep", "low", "--agent", "arm3", "--preset", "smoke", "--quiet", "--grid", "target_entropy=-3,-9",
+               "--num-envs", "4", "--batch-size", "8", "--out", str(tmp_path / "sw")]) == 0
+  assert [c.target_entropy for c, _, _ in seen] == [-3, -9]
+  assert {(c.num_envs, c.batch_size) for c, _, _ in seen} == {(4, 8)}
 
 
 def test_named_runs_accept_paths_with_equals(tmp_path):

@@ -100,17 +100,19 @@ def test_vmap_over_seeds_matches_separate_runs():
   jax.tree_util.tree_map(lambda x: np.testing.assert_equal(x.shape[0], 4), result.params)
 
 
-def test_vmapped_lr_grid_matches_separate_runs():
-  """run(hyper=...) trains a 2-point learning-rate grid x 2 seeds as one vmapped program; each
-  point equals its own separate run with the same seeds (float rounding apart)."""
+@pytest.mark.parametrize("fields, values", [(("actor_lr", "critic_lr"), [1e-4, 3e-4]),
+                                            (("target_entropy",), [-4.0, 2.0])])
+def test_vmapped_grid_matches_separate_runs(fields, values):
+  """run(hyper=...) trains a 2-point grid (learning rates; target entropies) x 2 seeds as one vmapped
+  program; each point equals its own separate run with the same seeds (float rounding apart)."""
   # (at lr 1e-3 the rounding differences grow chaotically: ~1e-7 after 100 updates, ~1e-3 in some
   # parameters after 200; at these rates they stay ~1e-7)
-  seeds, lrs = [0, 1], [1e-4, 3e-4]
+  seeds = [0, 1]
   one_chunk = dataclasses.replace(CFG, total_env_steps=CFG.env_steps_per_chunk)
-  grid = run(ENV, one_chunk, seeds, trainer=TRAINER, hyper={"actor_lr": lrs, "critic_lr": lrs})
+  grid = run(ENV, one_chunk, seeds, trainer=TRAINER, hyper={f: values for f in fields})
   assert grid.history["critic_loss"].shape == (4, 1) and grid.history["eval/return"].shape == (4, 2)
-  for p, lr in enumerate(lrs):
-    cfg = dataclasses.replace(one_chunk, actor_lr=lr, critic_lr=lr)
+  for p, v in enumerate(values):
+    cfg = dataclasses.replace(one_chunk, **{f: v for f in fields})
     alone = run(ENV, cfg, seeds, trainer=TRAINER if cfg == one_chunk else None)
     rows = slice(p * len(seeds), (p + 1) * len(seeds))
     for k, v in alone.history.items():
@@ -119,8 +121,9 @@ def test_vmapped_lr_grid_matches_separate_runs():
     for a, b in zip(jax.tree_util.tree_leaves(jax.tree_util.tree_map(lambda x: x[rows], grid.state.agent)),
                     jax.tree_util.tree_leaves(alone.state.agent)):
       np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
-  # the two points really trained differently (a mix-up of the learning rates would fail above)
-  assert not np.allclose(grid.history["critic_loss"][:2], grid.history["critic_loss"][2:], rtol=1e-2)
+  # the two points really trained differently (a mix-up of the values would fail above)
+  differs = "alpha" if fields == ("target_entropy",) else "critic_loss"
+  assert not np.allclose(grid.history[differs][:2], grid.history[differs][2:], rtol=1e-2)
 
 
 def test_hyper_grid_rejects_shape_changing_fields():

@@ -304,7 +304,7 @@ class SACState:
 
 # The SACConfig fields that change no array shape: ``make_update``'s update takes them as an
 # argument (``hyper``), so a grid over them runs as one vmapped program (hdt.agents.train.run).
-SWEEPABLE = ("actor_lr", "critic_lr", "alpha_lr", "tau", "gamma", "reward_scale")
+SWEEPABLE = ("actor_lr", "critic_lr", "alpha_lr", "tau", "gamma", "reward_scale", "target_entropy")
 
 
 def hyperparams(config: SACConfig, hyper: dict | None = None) -> dict:
@@ -370,11 +370,13 @@ def make_update(
   actor's log-probs), then the soft target update. With ``networks.value_net`` (SB2) the actor's loss
   is taken at the critics before their step, and the critic loss's V target uses the actor's noise.
   """
-  target_entropy = config.target_entropy_for(action_size)
   reg_name = getattr(actor_regularizer, "metric_name", "regularizer")
 
   def update(state: SACState, batch: Transition, noise, aux_state=None, reg_scale=1.0, hyper=None):
     h = hyperparams(config, hyper)
+    target_entropy = h["target_entropy"]
+    if target_entropy is None:
+      target_entropy = config.target_entropy_for(action_size)
     critic_loss, actor_loss, alpha_loss = make_losses(
         networks, gamma=h["gamma"], reward_scale=h["reward_scale"], target_entropy=target_entropy,
         actor_regularizer=actor_regularizer,

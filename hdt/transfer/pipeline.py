@@ -178,7 +178,7 @@ def sweep(level: str, runs: list[tuple], seeds=1, *, backend="auto", quiet=False
   align_stage). ``weights``: the values of the level's plug-in weights, ``{"kl_weight": beta}``
   (finetune: the KL weight, ``kl``) or ``{"disc_weight": w0}`` (align: the discriminator's ``w_init``),
   the same names for every run. Configs that differ only in fields of
-  :data:`hdt.agents.sac.SWEEPABLE` (learning rates, tau, gamma, reward scale), whatever their weights,
+  :data:`hdt.agents.sac.SWEEPABLE` (learning rates, tau, gamma, reward scale, target entropy), whatever their weights,
   train together, seeds and grid points as one vmapped program; the other groups (other network or
   batch sizes, num_envs, ...) in turn. Every run directory is written as by train_* (its meta.json
   records its weights). Returns the results in the order of ``runs``."""
