@@ -55,6 +55,7 @@ def main() -> None:
   ap.add_argument("--agents", nargs="+", default=["point", "arm3", "ant"])
   ap.add_argument("--warm", type=int, default=2, help="warm runs after the cold one")
   ap.add_argument("--out", default=os.path.join(HERE, "startup.json"))
+  ap.add_argument("--no-results", action="store_true", help="do not update benchmarks/results.json")
   ap.add_argument("--child")
   args = ap.parse_args()
   if args.child:
@@ -84,7 +85,7 @@ def main() -> None:
   with open(args.out, "w") as f:
     json.dump(result, f, indent=1)
   print(json.dumps(summary, indent=1))
-  if "arm3" in summary:
+  if "arm3" in summary and not args.no_results:
     sys.path.insert(0, HERE)
     from results import update
     measured = {f"{k}_startup_s_arm3_ll": v for k, v in summary["arm3"].items()}  # --warm 0 keeps the warm key
