@@ -506,6 +506,12 @@ class VmappedFns(NamedTuple):
   eval_keys: Callable  # (seed keys[S], int32 index) -> keys[S] of that evaluation (eval_key)
 
 
+# XLA options of the programs a run calls once (init) or that are tiny (eval_keys): without the
+# backend's optimisation passes they compile in about half the time and run as fast, which shortens
+# every cold start (BENCHMARKS.md, start-up). The chunk and the evaluation keep the default.
+RUN_ONCE = {"xla_backend_optimization_level": 0}
+
+
 @functools.lru_cache(maxsize=16)
 def vmapped(trainer: Trainer, num_seeds: int = 1, hyper: bool = False) -> VmappedFns:
   """``jit(vmap(...))`` of the trainer's functions over a leading seed axis, cached per trainer;
@@ -518,10 +524,10 @@ def vmapped(trainer: Trainer, num_seeds: int = 1, hyper: bool = False) -> Vmappe
   over = lambda fn, n=1: sharding_lib.over_seeds(jax.vmap(fn), mesh, n)
   chunk = (lambda ts, h: trainer.run_chunk(ts, h)) if hyper else (lambda ts: trainer.run_chunk(ts))
   return VmappedFns(
-      init=jax.jit(over(trainer.init)),
+      init=jax.jit(over(trainer.init), compiler_options=RUN_ONCE),
       run_chunk=jax.jit(over(chunk, 2 if hyper else 1), donate_argnums=0),
       evaluate=jax.jit(over(trainer.evaluate, 3)),
-      eval_keys=jax.jit(jax.vmap(eval_key, in_axes=(0, None))),
+      eval_keys=jax.jit(jax.vmap(eval_key, in_axes=(0, None)), compiler_options=RUN_ONCE),
   )
 
 
