@@ -75,6 +75,7 @@ HDT_CONFIGS = {
     "e16_u4_b128": dict(num_envs=16, updates_per_step=4, batch_size=128),  # UTD 1/4
     "e16_u4_b256": dict(num_envs=16, updates_per_step=4, batch_size=256),  # UTD 1/4
     "e16_u2_b256": dict(num_envs=16, updates_per_step=2, batch_size=256),  # UTD 1/8
+    "e8_u8_b64_norm": dict(num_envs=8, updates_per_step=8, batch_size=64, normalize_observations=True),
 }
 EVAL_KEY = 20260  # same evaluation episodes for every run
 _cache_hits = []
@@ -90,8 +91,10 @@ def load():
 # The one evaluator both frameworks go through.
 
 
-def make_evaluator(env, policy_fn, episodes: int):
-  """jitted ``(params) -> mean final goal distance`` of ``policy_fn(params, obs) -> action``."""
+def make_evaluator(env, policy_fn, episodes: int, metric: str = "dist"):
+  """jitted ``(params) -> mean final goal distance`` of ``policy_fn(params, obs) -> action``; with
+  ``metric="success"``, the share of episodes within the agent's reach radius at some step (what
+  ``hdt eval`` reports as an LL's success)."""
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
   keys = jax.random.split(jax.random.PRNGKey(EVAL_KEY), episodes)
 
@@ -103,13 +106,19 @@ def make_evaluator(env, policy_fn, episodes: int):
       return s, s.metrics["goal_dist"]
 
     _, dist = jax.lax.scan(step, s0, None, length=env.horizon)
+    if metric == "success":
+      return jnp.mean(jnp.any(dist < env.agent.reach_eps, axis=0))
     return jnp.mean(dist[-1])  # reach never ends early: the last step is the episode's last
 
   return jax.jit(evaluate)
 
 
 def hdt_policy_fn(networks):
-  return lambda params, obs: nets.deterministic_action(networks.policy_apply(params, obs)[0])
+  """``(params, obs) -> action``; params: the policy's, or (policy's, observation statistics)."""
+  def act(params, obs):
+    p, norm = params if isinstance(params, tuple) else (params, None)
+    return nets.deterministic_action(networks.policy_apply(p, obs, norm)[0])
+  return act
 
 
 # ------------------------------------------------------------------------------------------------
@@ -131,13 +140,14 @@ def first_crossings(curve, thresholds, offset=0.0, higher=False):
   return out
 
 
-def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log, metric="dist"):
   t0 = time.perf_counter()
   env = make(agent, "reach")
   cfg = configs.low_config(agent, total_env_steps=max_steps,
                            steps_per_chunk=eval_every // overrides["num_envs"], **overrides)
-  make_eval = lambda trainer: make_evaluator(env, hdt_policy_fn(trainer.networks), episodes)
-  return hdt_loop(f"hdt {agent}", env, cfg, seed, make_eval, thresholds, max_seconds, log, t0)
+  make_eval = lambda trainer: make_evaluator(env, hdt_policy_fn(trainer.networks), episodes, metric)
+  return hdt_loop(f"hdt {agent}", env, cfg, seed, make_eval, thresholds, max_seconds, log, t0,
+                  higher=metric == "success", metric_name=metric)
 
 
 def hdt_loop(label, env, cfg, seed, make_eval, thresholds, max_seconds, log, t0, higher=False,
@@ -163,7 +173,8 @@ def hdt_loop(label, env, cfg, seed, make_eval, thresholds, max_seconds, log, t0,
     jax.block_until_ready(m)
     train_s += time.perf_counter() - tc
     steps = int(np.asarray(ts.env_steps)[0])
-    metric = float(np.asarray(evaluate(ts.agent.policy_params))[0])
+    params = ts.agent.policy_params if ts.agent.obs_norm is None else (ts.agent.policy_params, ts.agent.obs_norm)
+    metric = float(np.asarray(evaluate(params))[0])
     curve.append((steps, train_s, metric))
     log(f"    {label} seed {seed}: {steps:7d} steps {train_s:7.1f}s  {metric_name} {metric:.3f}")
     if passes(metric, stop, higher):
@@ -180,14 +191,14 @@ def hdt_loop(label, env, cfg, seed, make_eval, thresholds, max_seconds, log, t0,
 # SBX
 
 
-def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log, metric="dist"):
   from gym_reach import ReachGymEnv
 
   env = make(agent, "reach")  # hdt env: the model for the gym port, and the evaluator's env
   t0 = time.perf_counter()
-  make_eval = lambda apply_fn: make_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes)
+  make_eval = lambda apply_fn: make_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes, metric)
   return sbx_loop(f"sbx {agent}", lambda: ReachGymEnv(env, seed=seed), hp, seed, make_eval, thresholds,
-                  eval_every, max_steps, max_seconds, log, t0)
+                  eval_every, max_steps, max_seconds, log, t0, higher=metric == "success", metric_name=metric)
 
 
 def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_steps, max_seconds,
@@ -301,7 +312,12 @@ def main():
   ap = argparse.ArgumentParser()
   ap.add_argument("--agents", default="point,arm3")
   add_run_args(ap, hdt_configs=HDT_CONFIGS, seeds=3, sbx_minutes=25.0, hdt_minutes=10.0, episodes=50)
-  ap.add_argument("--threshold", type=float, help="override the agent's threshold (m)")
+  ap.add_argument("--threshold", type=float, help="override the agent's threshold (m, or a rate with --metric success)")
+  ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed, first-seed + 1, ...")
+  ap.add_argument("--extra-thresholds", default="", help="comma-separated further thresholds with --threshold")
+  ap.add_argument("--metric", choices=("dist", "success"), default="dist",
+                  help="quality: mean final goal distance below the threshold, or the share of episodes within "
+                       "the agent's reach radius (1 cm for arms) at some step at or above it (needs --threshold)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (env steps)")
   ap.add_argument("--max-steps", type=int, help="override the env-step cap per seed")
   ap.add_argument("--recompute", action="store_true",
@@ -327,7 +343,7 @@ def main():
       update_results(out)
     return
   args.compile_cache = str(enable_compile_cache(args.compile_cache or tempfile.mkdtemp(prefix="hdt-ttq-")))
-  seeds = list(range(1 if args.quick else args.seeds))
+  seeds = list(range(args.first_seed, args.first_seed + (1 if args.quick else args.seeds)))
   hdt_names = args.hdt_configs.split(",")[:1] if args.quick else args.hdt_configs.split(",")
 
   def log(msg):
@@ -341,26 +357,33 @@ def main():
       prev = json.load(f)
     out["agents"] = {k: v for k, v in prev.get("agents", {}).items() if k not in agents}
 
+  success = args.metric == "success"
+  if success and args.threshold is None:
+    raise SystemExit("--metric success needs --threshold RATE (e.g. 0.65)")
   for agent in agents:
     task = dict(TASKS[agent], **(QUICK[agent] if args.quick else {}))
     for k in ("threshold", "eval_every", "max_steps"):
       if getattr(args, k) is not None:
         task[k] = getattr(args, k)
     if args.threshold is not None:
-      task["extra_thresholds"] = ()
+      task["extra_thresholds"] = tuple(float(t) for t in args.extra_thresholds.split(",") if t)
     thr, every, cap = task["threshold"], task["eval_every"], task["max_steps"]
     thrs = [thr, *task["extra_thresholds"]]
     res = dict(threshold=thr, thresholds=thrs, eval_every=every, max_steps=cap,
                eval_episodes=args.eval_episodes, sbx_hyper=task["sbx"], hdt={}, sbx=None)
-    log(f"== {agent} reach: quality = mean final goal distance < {thrs} m (load {load()})")
+    if success:
+      res.update(higher=True, unit="", metric="success within the reach radius ",
+                 results_key=f"sbx_speedup_{agent}_reach_success")
+    log(f"== {agent} reach: quality = " + (f"success rate >= {thrs}" if success else f"mean final goal distance < {thrs} m")
+        + f" (load {load()})")
     if not args.skip_hdt:
       for name in hdt_names:
         runs = [run_hdt(agent, HDT_CONFIGS[name], s, thrs, every, cap, 60 * args.hdt_max_minutes,
-                        args.eval_episodes, log) for s in seeds]
+                        args.eval_episodes, log, args.metric) for s in seeds]
         res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=runs)
     if not args.skip_sbx:
       runs = [run_sbx(agent, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
-                      args.eval_episodes, log) for s in seeds]
+                      args.eval_episodes, log, args.metric) for s in seeds]
       res["sbx"] = dict(runs=runs)
     if os.path.exists(args.out) and (args.skip_sbx or args.skip_hdt):  # merge with the other half
       with open(args.out) as f:
