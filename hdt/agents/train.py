@@ -670,7 +670,10 @@ def run(
       )
   chunk_fn, eval_fn = fns.run_chunk, fns.evaluate
   if hyper is not None:
-    per_run = {k: sharding_lib.shard(jnp.asarray([p[k] for p in points for _ in seeds], jnp.float32),
+    # a target entropy of None is the config's default (-action_size), as a number for the grid
+    value = lambda k, v: (dataclasses.replace(config, target_entropy=v).target_entropy_for(env.action_size)
+                          if k == "target_entropy" else v)
+    per_run = {k: sharding_lib.shard(jnp.asarray([value(k, p[k]) for p in points for _ in seeds], jnp.float32),
                                      sharding) for k in hyper}
     chunk_fn = lambda ts: fns.run_chunk(ts, per_run)
   start_chunk = int(np.asarray(ts.env_steps).reshape(-1)[0]) // chunk_steps
