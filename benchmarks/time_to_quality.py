@@ -12,7 +12,8 @@ numpy, as a reference user would. hdt trains with its own jitted, vmapped loop.
 Quality (the same code for both): the policy's deterministic action ``tanh(mean)`` is rolled out in
 hdt's env for ``--eval-episodes`` episodes of the LL horizon from fresh resets, with the SAME key
 every time (same start states and goals for every evaluation of every run), and the metric is the
-mean goal distance at the episode's last step. A run reaches quality at the first evaluation whose
+mean goal distance at the episode's last step (``--metric success``: the share of episodes within the
+agent's reach radius at some step, the authors' LL success; a run then passes at or above the threshold). A run reaches quality at the first evaluation whose
 metric is below the agent's threshold; evaluations happen every ``eval_every`` env steps (per
 seed) for both, and their time is excluded from both clocks.
 
