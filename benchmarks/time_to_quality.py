@@ -115,10 +115,10 @@ def make_evaluator(env, policy_fn, episodes: int, metric: str = "dist"):
 
 
 def hdt_policy_fn(networks):
-  """``(params, obs) -> action``; params: the policy's, or (policy's, observation statistics)."""
+  """``(params, obs) -> action``; params: (the policy's, its observation statistics or None)."""
   def act(params, obs):
-    p, norm = params if isinstance(params, tuple) else (params, None)
-    return nets.deterministic_action(networks.policy_apply(p, obs, norm)[0])
+    policy_params, obs_norm = params
+    return nets.deterministic_action(networks.policy_apply(policy_params, obs, obs_norm)[0])
   return act
 
 
@@ -154,7 +154,7 @@ def run_hdt(agent, overrides, seed, thresholds, eval_every, max_steps, max_secon
 def hdt_loop(label, env, cfg, seed, make_eval, thresholds, max_seconds, log, t0, higher=False,
              metric_name="dist"):
   """Trains hdt SAC on ``env`` with ``cfg`` (one seed) chunk by chunk, evaluating after each chunk
-  with ``make_eval(trainer)(policy_params) -> metric`` until the tightest threshold is passed, the
+  with ``make_eval(trainer)((policy_params, obs_norm)) -> metric`` until the tightest threshold is passed, the
   step cap or ``max_seconds`` (training clock, started at ``t0``, evaluation excluded)."""
   trainer = make_train(env, cfg)
   fns = vmapped(trainer)
@@ -174,8 +174,7 @@ def hdt_loop(label, env, cfg, seed, make_eval, thresholds, max_seconds, log, t0,
     jax.block_until_ready(m)
     train_s += time.perf_counter() - tc
     steps = int(np.asarray(ts.env_steps)[0])
-    params = ts.agent.policy_params if ts.agent.obs_norm is None else (ts.agent.policy_params, ts.agent.obs_norm)
-    metric = float(np.asarray(evaluate(params))[0])
+    metric = float(np.asarray(evaluate((ts.agent.policy_params, ts.agent.obs_norm)))[0])
     curve.append((steps, train_s, metric))
     log(f"    {label} seed {seed}: {steps:7d} steps {train_s:7.1f}s  {metric_name} {metric:.3f}")
     if passes(metric, stop, higher):
