@@ -108,6 +108,9 @@ TASKS = {
 HDT_CONFIGS = {
     "e8_u8_b64": dict(num_envs=8, updates_per_step=8, batch_size=64),  # UTD 1, the cpu preset
     "e16_u4_b128": dict(num_envs=16, updates_per_step=4, batch_size=128),  # UTD 1/4
+    "e8_u16_b64": dict(num_envs=8, updates_per_step=16, batch_size=64),  # UTD 2
+    "e8_u8_b64_norm": dict(num_envs=8, updates_per_step=8, batch_size=64, normalize_observations=True),
+    "e8_u16_b64_norm": dict(num_envs=8, updates_per_step=16, batch_size=64, normalize_observations=True),
 }
 
 
@@ -304,6 +307,7 @@ def join_earlier(res: dict, old: dict, skip_sbx: bool, skip_hdt: bool) -> None:
     res["sbx"] = old.get("sbx") or res["sbx"]
     for name, h in res["hdt"].items():
       h["runs"] = merge_seeds(old.get("hdt", {}).get(name, {}).get("runs", []), h["runs"])
+    res["hdt"] = {**old.get("hdt", {}), **res["hdt"]}  # configs not run now stay
   if skip_hdt:
     res["hdt"] = old.get("hdt", {})
     if res["sbx"]:
