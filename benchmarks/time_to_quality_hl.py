@@ -111,6 +111,10 @@ HDT_CONFIGS = {
     "e8_u16_b64": dict(num_envs=8, updates_per_step=16, batch_size=64),  # UTD 2
     "e8_u8_b64_norm": dict(num_envs=8, updates_per_step=8, batch_size=64, normalize_observations=True),
     "e8_u16_b64_norm": dict(num_envs=8, updates_per_step=16, batch_size=64, normalize_observations=True),
+    # The env alone is ~90% of a UTD-2 decision here, so more updates per decision are nearly free.
+    "e8_u32_b64_norm": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True),
+    "e8_u64_b64_norm": dict(num_envs=8, updates_per_step=64, batch_size=64, normalize_observations=True),
+    "e8_u32_b128_norm": dict(num_envs=8, updates_per_step=32, batch_size=128, normalize_observations=True),
 }
 
 
