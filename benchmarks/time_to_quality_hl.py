@@ -49,7 +49,8 @@ jitted env reset / step (timed alone too: ``env_compile_s``, printed under the t
 first seed, from the persistent cache for later ones, like hdt's chunk); the HL env object it wraps
 is built before SBX's clock starts (it is also the evaluator's env). SBX: the paper's HL
 hyper-parameters ([64,64], lr 3e-4, batch 64, buffer 50k), one env, one gradient update per env
-step, ``learning_starts=100``. hdt: ``HDT_CONFIGS`` below.
+step, ``learning_starts=100``. hdt: ``HDT_CONFIGS`` below (for push1, ``e8_u32_b64_norm``: UTD 4 with
+observation normalisation, chosen on seeds 0-2 and measured on held-out seeds 3-5, BENCHMARKS.md item 1).
 Writes ``benchmarks/time_to_quality_hl.json`` and the results.json key
 ``sbx_speedup_pm_waypoint_hl`` (skipped with ``--quick`` or ``--no-results``).
 """
