@@ -117,6 +117,30 @@ def test_hl_step_stops_at_epsilon_and_pays_end_reward_minus_skill_penalty():
   assert float(jax.jit(hl_k.step)(s, z).metrics["ll_steps"]) == hl.k
 
 
+def test_vmapped_hl_step_is_the_authors_loop_per_env():
+  """Each env of a vmapped HL step equals the authors' high_level_step on its own: LL steps one at a
+  time until within epsilon_low of the sub-goal or k steps, whatever its neighbours still do."""
+  hl = _hl("arm_point", "push1", S.point_ll(30.0, 0.5))
+  s = jax.jit(jax.vmap(hl.reset))(jax.random.split(jax.random.PRNGKey(3), 6))
+  z = jnp.array([[0.0, 0.5], [1.0, 1.0], [-1.0, 0.2], [0.1, 0.0], [0.3, -1.0], [-0.6, -0.6]])
+  n = jax.jit(jax.vmap(hl.step))(s, z)
+  inner_step = jax.jit(lambda st, a: hl.env.step(st, a, auto_reset=False))
+  task, taken = hl.env.task, []
+  for e in range(len(z)):
+    st = jax.tree.map(lambda x: x[e], s.physics)
+    goal = st.obs_hi[:2] + hl.delta_max * z[e]
+    for i in range(hl.k):
+      st = inner_step(st, hl.low_policy(None, task.ll_observation(st.obs_lo, st.obs_hi, goal)))
+      if st.done or np.linalg.norm(np.asarray(st.obs_hi[:2] - goal)) < hl.eps:
+        break
+    taken.append(i + 1)
+    assert int(n.metrics["ll_steps"][e]) == i + 1
+    np.testing.assert_allclose(np.asarray(n.next_obs_hi[e]), np.asarray(st.obs_hi), atol=1e-6)
+    want = float(st.reward) - task.skill_penalty * float(jnp.linalg.norm(hl.delta_max * z[e]))
+    assert float(n.reward[e]) == pytest.approx(want, abs=1e-5)
+  assert min(taken) < max(taken)  # envs stopped at different LL steps
+
+
 def test_waypoint_hl_reward_is_100_once_when_reached_within_the_step():
   hl = _hl("point", "waypoint", S.point_ll(1.0, 0.3))
   s = jax.jit(hl.reset)(jax.random.PRNGKey(1))

@@ -37,6 +37,24 @@ def test_custom_call_equals_callback(agent, task):
   assert float(jnp.abs(a[1].qpos[-1] - ps.qpos).max()) > 1e-3  # the robots did move
 
 
+@pytest.mark.parametrize("use_ffi", [True, False])
+def test_masked_step_passes_inactive_envs_through_and_steps_the_rest(use_ffi):
+  env = E.make("arm_point", "push1", backend="native")
+  phys = NativePhysics(env.mj_model, env.agent.frame_skip, use_ffi=use_ffi)
+  ps = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 6)).physics
+  u = jax.random.uniform(jax.random.PRNGKey(1), (6, env.mj_model.nu), minval=-1, maxval=1)
+  on = jnp.array([True, False, True, True, False, False])
+  full = jax.jit(jax.vmap(phys.step))(ps, u)
+  masked = jax.jit(jax.vmap(phys.step))(ps, u, on)
+  none = jax.jit(jax.vmap(phys.step))(ps, u, jnp.zeros(6, bool))
+  for f, m, p, n in zip(jax.tree.leaves(full), jax.tree.leaves(masked), jax.tree.leaves(ps), jax.tree.leaves(none)):
+    f, m, p, n = map(np.asarray, (f, m, p, n))
+    np.testing.assert_array_equal(m[np.asarray(on)], f[np.asarray(on)])
+    np.testing.assert_array_equal(m[~np.asarray(on)], p[~np.asarray(on)])
+    np.testing.assert_array_equal(n, p)
+  assert float(jnp.abs(full.qvel - ps.qvel).max()) > 1e-3  # stepping does change the state
+
+
 def test_unbatched_step_and_model_id_is_content_hash():
   env = E.make("point", "reach", backend="native")
   s = env.step(env.reset(jax.random.PRNGKey(0)), jnp.ones(env.action_size))

@@ -159,12 +159,14 @@ class AgentTaskEnv:
     action = jnp.clip(action, -1.0, 1.0)
     return self._ctrl_lo + (action + 1.0) * 0.5 * (self._ctrl_hi - self._ctrl_lo)
 
-  def step(self, state: State, action: jax.Array, auto_reset: bool = True) -> State:
+  def step(self, state: State, action: jax.Array, auto_reset: bool = True,
+           active: jax.Array | None = None) -> State:
     """One step. ``auto_reset=False`` (the HL env, which owns episodes) never ends an episode on the
-    task or the time limit and never resets; ``done`` then only flags a fall."""
+    task or the time limit and never resets; ``done`` then only flags a fall. ``active`` (optional,
+    a bool per env) lets the physics skip envs whose result the caller discards."""
     key, k_task, k_reset, k_new, k_phys = jax.random.split(state.key, 5)
     ctrl = self.ctrl(action)
-    ps = self.physics.step(state.physics, ctrl)
+    ps = self.physics.step(state.physics, ctrl, active)
     q_prev, q = self.quantities(state.physics), self.quantities(ps)
     # The control cost is on the raw controls, as the authors' low_level_step.
     reward, solved, t, metrics = self.task.reward(k_task, self.agent, q_prev, q, ctrl,

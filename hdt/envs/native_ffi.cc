@@ -128,8 +128,9 @@ ffi::Error CheckSizes(const mjModel* m, size_t n, size_t nq, size_t nv, size_t n
 ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip,
                     ffi::Buffer<ffi::F32> time, ffi::Buffer<ffi::F32> qpos,
                     ffi::Buffer<ffi::F32> qvel, ffi::Buffer<ffi::F32> ctrl,
-                    ffi::ResultBuffer<ffi::F32> time_out, ffi::ResultBuffer<ffi::F32> qpos_out,
-                    ffi::ResultBuffer<ffi::F32> qvel_out, ffi::ResultBuffer<ffi::F32> sens_out) {
+                    ffi::Buffer<ffi::F32> active, ffi::ResultBuffer<ffi::F32> time_out,
+                    ffi::ResultBuffer<ffi::F32> qpos_out, ffi::ResultBuffer<ffi::F32> qvel_out,
+                    ffi::ResultBuffer<ffi::F32> sens_out) {
   Entry* e = Find(model_id);
   if (!e) return ffi::Error::InvalidArgument("hdt native physics: model not registered");
   const mjModel* m = e->model;
@@ -140,11 +141,30 @@ ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip,
   if (ctrl.element_count() != static_cast<size_t>(n * m->nu)) {
     return ffi::Error::InvalidArgument("hdt native physics: ctrl size does not match the model");
   }
+  if (active.element_count() != static_cast<size_t>(n)) {
+    return ffi::Error::InvalidArgument("hdt native physics: active mask size does not match the batch");
+  }
   const float *t_in = time.typed_data(), *qp = qpos.typed_data(), *qv = qvel.typed_data(),
-              *u = ctrl.typed_data();
+              *u = ctrl.typed_data(), *on = active.typed_data();
   float *t_out = time_out->typed_data(), *qp_out = qpos_out->typed_data(),
         *qv_out = qvel_out->typed_data(), *s_out = sens_out->typed_data();
-  ParallelFor(e, n, &pool, [&](mjData* d, int64_t i) {
+  // Inactive envs (an HL step's LL loop that already stopped) are passed through unstepped, with
+  // zero sensors; only the active ones are stepped, compacted so the threads share them evenly.
+  std::vector<int64_t> rows;
+  rows.reserve(n);
+  for (int64_t i = 0; i < n; i++) {
+    if (on[i] != 0.0f) {
+      rows.push_back(i);
+      continue;
+    }
+    t_out[i] = t_in[i];
+    std::copy(qp + i * m->nq, qp + (i + 1) * m->nq, qp_out + i * m->nq);
+    std::copy(qv + i * m->nv, qv + (i + 1) * m->nv, qv_out + i * m->nv);
+    std::fill(s_out + i * m->nsensordata, s_out + (i + 1) * m->nsensordata, 0.0f);
+  }
+  if (rows.empty()) return ffi::Error::Success();
+  ParallelFor(e, static_cast<int64_t>(rows.size()), &pool, [&](mjData* d, int64_t j) {
+    int64_t i = rows[j];
     SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv);
     for (int k = 0; k < m->nu; k++) d->ctrl[k] = u[i * m->nu + k];
     for (int64_t s = 0; s < frame_skip && !Warned(d); s++) mj_step(m, d);
@@ -189,6 +209,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(HdtPhysicsStep, StepImpl,
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // active (1 = step, 0 = pass through)
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()

@@ -7,6 +7,8 @@ which keeps the two in step with each other. Native MuJoCo runs as an XLA FFI cu
 (``native_ffi.cc``, multi-threaded C, ``mujoco.rollout``'s semantics) with a batched ``vmap_method``, so
 it composes with jit, scan and vmap; where no C++ compiler is found it runs ``mujoco.rollout`` behind
 ``jax.pure_callback`` instead (same results, slower, and never in JAX's persistent compile cache).
+``step`` takes an optional ``active`` mask: envs where it is false come back unchanged, and the native
+backend does not step them (under ``vmap``, the envs whose HL step already stopped its LL loop).
 Why two: on a CPU, contact-rich scenes under MJX run 100-200x slower than native MuJoCo (SPEC 7).
 """
 
@@ -100,13 +102,13 @@ class MJXPhysics:
     d = self._mjx.forward(self.model, self._data0.replace(time=time, qpos=qpos, qvel=qvel))
     return PhysicsState(d.time, d.qpos, d.qvel, d.sensordata, d.qacc_warmstart)
 
-  def step(self, ps: PhysicsState, ctrl: jax.Array) -> PhysicsState:
+  def step(self, ps: PhysicsState, ctrl: jax.Array, active: jax.Array | None = None) -> PhysicsState:
     # Carrying the warm-start matters: without it the solver starts cold every env step and, under
     # vmap, runs until the slowest env converges (measured: ant 79 env steps/s instead of thousands).
     d = self._data0.replace(time=ps.time, qpos=ps.qpos, qvel=ps.qvel, qacc_warmstart=ps.warmstart,
                             ctrl=ctrl)
     d = jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._mjx.step(self.model, d), d)
-    return PhysicsState(d.time, d.qpos, d.qvel, d.sensordata, d.qacc_warmstart)
+    return _keep_inactive(PhysicsState(d.time, d.qpos, d.qvel, d.sensordata, d.qacc_warmstart), ps, active)
 
 
 class NativePhysics:
@@ -147,19 +149,23 @@ class NativePhysics:
             f32(state[:, 1 + m.nq:].reshape(batch + (m.nv,))),
             f32(sens.reshape(batch + (m.nsensordata,))))
 
-  def _step_host(self, time, qpos, qvel, ctrl):
-    time, qpos, qvel, ctrl = map(np.asarray, (time, qpos, qvel, ctrl))
+  def _step_host(self, time, qpos, qvel, ctrl, active):
+    time, qpos, qvel, ctrl, active = map(np.asarray, (time, qpos, qvel, ctrl, active))
     batch = np.shape(time)
     state = np.concatenate([np.reshape(time, (-1, 1)), np.reshape(qpos, (-1, self.mj_model.nq)),
                             np.reshape(qvel, (-1, self.mj_model.nv))], axis=1).astype(np.float64)
     ctrl = np.reshape(ctrl, (-1, 1, self.mj_model.nu)).astype(np.float64)
     ctrl = np.repeat(ctrl, self.frame_skip, axis=1)
-    n = state.shape[0]
-    with self._lock:  # one chunk per thread: per-call dispatch dominates at a few substeps per call
-      out_state, out_sens = rollout.rollout(
-          self.mj_model, self._datas[:n], state, ctrl, nstep=self.frame_skip,
-          chunk_size=-(-n // min(n, self._nthread)), persistent_pool=True)
-    return self._unpack(out_state[:, -1], out_sens[:, -1], batch)
+    rows = np.flatnonzero(np.reshape(active, (-1,)))  # inactive envs pass through (as the custom call)
+    out, sens = state.copy(), np.zeros((state.shape[0], self.mj_model.nsensordata))
+    n = len(rows)
+    if n:
+      with self._lock:  # one chunk per thread: per-call dispatch dominates at a few substeps per call
+        out_state, out_sens = rollout.rollout(
+            self.mj_model, self._datas[:n], state[rows], ctrl[rows], nstep=self.frame_skip,
+            chunk_size=-(-n // min(n, self._nthread)), persistent_pool=True)
+      out[rows], sens[rows] = out_state[:, -1], out_sens[:, -1]
+    return self._unpack(out, sens, batch)
 
   def _forward_host(self, time, qpos, qvel):
     time, qpos, qvel = map(np.asarray, (time, qpos, qvel))
@@ -187,16 +193,24 @@ class NativePhysics:
                               vmap_method="broadcast_all")
     return PhysicsState(*out, jnp.zeros_like(qvel))
 
-  def step(self, ps: PhysicsState, ctrl: jax.Array) -> PhysicsState:
+  def step(self, ps: PhysicsState, ctrl: jax.Array, active: jax.Array | None = None) -> PhysicsState:
     shapes = self._shapes(jnp.shape(ps.time))
+    on = jnp.ones_like(ps.time) if active is None else jnp.asarray(active, jnp.float32)
     if self.use_ffi:
       out = jax.ffi.ffi_call(native_ffi.STEP_TARGET, shapes, vmap_method="broadcast_all")(
-          *_f32(ps.time, ps.qpos, ps.qvel, ctrl), model_id=np.int64(self._model_id),
+          *_f32(ps.time, ps.qpos, ps.qvel, ctrl, on), model_id=np.int64(self._model_id),
           frame_skip=np.int64(self.frame_skip))
     else:
-      out = jax.pure_callback(self._step_host, shapes, ps.time, ps.qpos, ps.qvel, ctrl,
+      out = jax.pure_callback(self._step_host, shapes, ps.time, ps.qpos, ps.qvel, ctrl, on,
                               vmap_method="broadcast_all")
-    return PhysicsState(*out, ps.warmstart)
+    return _keep_inactive(PhysicsState(*out, ps.warmstart), ps, active)
+
+
+def _keep_inactive(new: PhysicsState, old: PhysicsState, active: jax.Array | None) -> PhysicsState:
+  """``new`` where ``active``, ``old`` (unstepped, its sensors included) elsewhere."""
+  if active is None:
+    return new
+  return jax.tree.map(lambda n, o: jnp.where(active, n, o), new, old)
 
 
 def _f32(*xs):

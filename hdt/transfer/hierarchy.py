@@ -2,8 +2,8 @@
 
 One HL action is a relative sub-goal z in [-1, 1]^2, scaled to the agent's goal box (``delta_max``):
 ``g = skill(obs_hi) + delta_max * z``. One HL step is the authors' ``Hierarchical.high_level_step``
-(bot_transfer/envs/hierarchical.py): the frozen LL acts deterministically in a ``lax.scan`` of at most k
-steps and stops once the goal-space point is within epsilon of g (``early_stop``) or the robot fell;
+(bot_transfer/envs/hierarchical.py): the frozen LL acts deterministically for at most k steps (a
+``while_loop``) and stops once the goal-space point is within epsilon of g (``early_stop``) or the robot fell;
 the HL reward is the task's reward at the end of the step (``Task.hl_reward``) minus
 ``skill_penalty * |delta_max * z|``, and the task is judged solved on the state at the end of the step.
 The LL parameters live in the state, so every seed of a vmapped sweep can drive its own LL.
@@ -106,27 +106,31 @@ class HighLevelEnv:
     z = self.delta_max * jnp.clip(action, -1.0, 1.0)
     goal = skill(inner0.obs_hi) + z
 
-    def ll_step(carry, i):
-      inner, active, last = carry
+    def ll_step(inner, running):
       a = self.low_policy(low, task.ll_observation(inner.obs_lo, inner.obs_hi, goal))
-      nxt = self.env.step(inner, a, auto_reset=False)
-      # Once stopped, the inner state is frozen (the step above is discarded).
-      inner = jax.tree.map(lambda n, o: jnp.where(active, n, o), nxt, inner)
-      reached = jnp.linalg.norm(skill(nxt.obs_hi) - goal) < self.eps
-      out = {k: jnp.where(active, v, 0.0) for k, v in nxt.metrics.items()}
-      out["reward"] = jnp.where(active, nxt.reward, 0.0)
-      out["active"] = active.astype(jnp.float32)
+      nxt = self.env.step(inner, a, auto_reset=False, active=running)
+      out = dict(nxt.metrics, reward=nxt.reward, active=jnp.float32(1.0))
       if self.record:
         out["xy"] = skill(nxt.obs_hi)
         out["block"] = nxt.obs_hi[2:4] if nxt.obs_hi.shape[-1] >= 4 else jnp.zeros(2)
-      last = jnp.where(active, i, last)
-      still = active & (nxt.done == 0)  # the inner env's done flags a fall only
+      still = nxt.done == 0  # the inner env's done flags a fall only
       if self.early_stop:
-        still = still & ~reached
-      return (inner, still, last), out
+        still = still & ~(jnp.linalg.norm(skill(nxt.obs_hi) - goal) < self.eps)
+      return nxt, still, out
 
-    carry0 = (inner0, jnp.bool_(True), jnp.int32(0))
-    (inner, _, last), per = jax.lax.scan(ll_step, carry0, jnp.arange(self.k))
+    # A while loop, not a scan of k steps: it ends when the LL stops (under vmap, when every env's
+    # LL has), and the physics skips the envs that stopped earlier. Steps not taken record zeros.
+    template = jax.eval_shape(ll_step, inner0, jnp.bool_(True))[2]
+    per0 = {k: jnp.zeros((self.k,) + v.shape, v.dtype) for k, v in template.items()}
+
+    def body(c):
+      i, inner, running, _, per = c
+      nxt, still, out = ll_step(inner, running)
+      per = {k: v.at[i].set(out[k]) for k, v in per.items()}
+      return i + 1, nxt, still, i, per
+
+    c0 = (jnp.int32(0), inner0, jnp.bool_(True), jnp.int32(0), per0)
+    _, inner, _, last, per = jax.lax.while_loop(lambda c: c[2] & (c[0] < self.k), body, c0)
 
     reward = task.hl_reward(per["reward"], per, last) - task.skill_penalty * jnp.linalg.norm(z)
     # A fall ends the HL step but not the HL episode (high_level_is_done ignores it, e.g. ant.py Ant):
