@@ -109,7 +109,7 @@ class HighLevelEnv:
     def ll_step(inner, running):
       a = self.low_policy(low, task.ll_observation(inner.obs_lo, inner.obs_hi, goal))
       nxt = self.env.step(inner, a, auto_reset=False, active=running)
-      out = dict(nxt.metrics, reward=nxt.reward, active=jnp.float32(1.0))
+      out = dict(nxt.metrics, reward=nxt.reward)
       if self.record:
         out["xy"] = skill(nxt.obs_hi)
         out["block"] = nxt.obs_hi[2:4] if nxt.obs_hi.shape[-1] >= 4 else jnp.zeros(2)
@@ -124,13 +124,15 @@ class HighLevelEnv:
     per0 = {k: jnp.zeros((self.k,) + v.shape, v.dtype) for k, v in template.items()}
 
     def body(c):
-      i, inner, running, _, per = c
+      i, inner, running, per = c
       nxt, still, out = ll_step(inner, running)
       per = {k: v.at[i].set(out[k]) for k, v in per.items()}
-      return i + 1, nxt, still, i, per
+      return i + 1, nxt, still, per
 
-    c0 = (jnp.int32(0), inner0, jnp.bool_(True), jnp.int32(0), per0)
-    _, inner, _, last, per = jax.lax.while_loop(lambda c: c[2] & (c[0] < self.k), body, c0)
+    c0 = (jnp.int32(0), inner0, jnp.bool_(True), per0)
+    taken, inner, _, per = jax.lax.while_loop(lambda c: c[2] & (c[0] < self.k), body, c0)
+    last = taken - 1  # the loop always takes a first step
+    per["active"] = (jnp.arange(self.k) < taken).astype(jnp.float32)
 
     reward = task.hl_reward(per["reward"], per, last) - task.skill_penalty * jnp.linalg.norm(z)
     # A fall ends the HL step but not the HL episode (high_level_is_done ignores it, e.g. ant.py Ant):
