@@ -349,6 +349,35 @@ def test_checkpoint_of_another_kind_is_refused(saved):
     ckpt.load_state_info(saved / "seed_0")
 
 
+def test_a_state_saved_with_per_layer_adam_moments_resumes_with_them_raveled(tmp_path):
+  """States saved before the optimisers raveled each network (hdt.agents.sac.make_optimizers) hold one
+  Adam moment per layer; they load as the raveled vector optax.flatten keeps, seed by seed."""
+  import optax
+  from jax.flatten_util import ravel_pytree
+  from hdt.agents import networks as nets
+  from hdt.agents.sac import init_sac_state
+
+  cfg = SACConfig(hidden_sizes=(8, 8))
+  n = nets.make_sac_networks(3, 2, cfg.hidden_sizes)
+  new = jax.vmap(lambda k: init_sac_state(n, cfg, k))(jax.random.split(jax.random.PRNGKey(0), 2))
+  rng = np.random.default_rng(0)
+  noisy = lambda tree: jax.tree.map(lambda x: rng.normal(size=x.shape).astype(x.dtype) if x.dtype == np.float32 else x, tree)
+  per_layer = lambda params: jax.vmap(optax.adam(1e-3).init)(params)  # the old optimiser state
+  old = new.replace(policy_opt_state=noisy(per_layer(new.policy_params)),
+                    q_opt_state=noisy(per_layer(new.q_params)), alpha_opt_state=noisy(per_layer(new.log_alpha)))
+  ckpt.save_state(tmp_path / "run", {"agent": old}, {}, {})
+  got = ckpt.load_state(tmp_path / "run", {"agent": new}).tree["agent"]
+  assert jax.tree.structure(got) == jax.tree.structure(new)
+  for name in ("policy_opt_state", "q_opt_state", "alpha_opt_state"):
+    saved, loaded = getattr(old, name)[0], getattr(got, name)[0]
+    np.testing.assert_array_equal(loaded.count, saved.count)
+    for moment in ("mu", "nu"):
+      want = np.stack([ravel_pytree(jax.tree.map(lambda x: x[s], getattr(saved, moment)))[0] for s in range(2)])
+      np.testing.assert_array_equal(getattr(loaded, moment), want)
+  np.testing.assert_array_equal(got.q_params["params"]["critics"]["out"]["kernel"],
+                                old.q_params["params"]["critics"]["out"]["kernel"])
+
+
 # ------------------------------------------------------------------------------------------------
 # Bad inputs fail with a message naming the problem and the fix, before anything is written.
 

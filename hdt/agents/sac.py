@@ -318,9 +318,11 @@ def hyperparams(config: SACConfig, hyper: dict | None = None) -> dict:
 
 def make_optimizers(config: SACConfig, hyper: dict | None = None):
   """(policy, q, alpha) optax optimisers: plain Adam (learning rates from :func:`hyperparams`; Adam's
-  state does not depend on them)."""
+  state does not depend on them), each on its parameters raveled into one vector (``optax.flatten``):
+  XLA:CPU then runs a network's Adam step as a few kernels instead of a few per layer, which is most
+  of an update's cost for small networks."""
   h = hyperparams(config, hyper)
-  return optax.adam(h["actor_lr"]), optax.adam(h["critic_lr"]), optax.adam(h["alpha_lr"])
+  return tuple(optax.flatten(optax.adam(h[k])) for k in ("actor_lr", "critic_lr", "alpha_lr"))
 
 
 def target_part(networks: nets.SACNetworks, q_params: Params) -> Params:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -368,18 +369,33 @@ _LEGACY_NORM = ((".agent.policy_params['obs_norm']", ".agent.obs_norm"),
                 ("['policy']['obs_norm']", "['obs_norm']"))
 
 
-def _legacy_order(got: list, want: list) -> list[int] | None:
-  """For a state saved with the statistics inside the networks (leaf specs ``got``), the saved index of
-  each leaf of ``want``; None if that renaming does not make them fit."""
-  if not any(f"['{NORM}']" in g[0] for g in got):
-    return None
+def _legacy_sources(got: list, want: list) -> list[list[int]] | None:
+  """For a state saved by an older hdt (leaf specs ``got``), the saved indices that make each leaf of
+  ``want`` (one leaf, or several raveled and concatenated); None if ``got`` is not such a state or the
+  conversions below do not make it fit. Two conversions: the observation statistics that lived inside
+  the networks (:data:`_LEGACY_NORM`; their other copies are dropped), and the Adam moments kept per
+  layer before the optimisers raveled each network's parameters (``hdt.agents.sac.make_optimizers``):
+  ``...mu['params']...`` leaves become one ``...mu`` vector, in pytree order (as ``optax.flatten``)."""
+  legacy_norm = any(f"['{NORM}']" in g[0] for g in got)
   index = {}
   for i, (name, shape, dtype) in enumerate(got):
-    new = next((n + name[len(o):] for o, n in _LEGACY_NORM if name.startswith(o)), None)
+    new = next((n + name[len(o):] for o, n in _LEGACY_NORM if name.startswith(o)), None) if legacy_norm else None
     if new is not None or f"['{NORM}']" not in name:
       index[new or name] = (i, [new or name, shape, dtype])
-  order = [index.get(w[0], (None, None)) for w in want]
-  return [i for i, _ in order] if all(spec == w for (_, spec), w in zip(order, want)) else None
+  sources = []
+  for name, shape, dtype in want:
+    if index.get(name, (None, None))[1] == [name, shape, dtype]:
+      sources.append([index[name][0]])
+      continue
+    # leading axes (seeds, grid points) kept; the rest of every part raveled into the last axis
+    lead = shape[:-1]
+    parts = [(i, spec) for n, (i, spec) in index.items() if n == name or n.startswith(name + "[")]
+    if not (shape and parts and all(spec[2] == dtype and spec[1][:len(lead)] == lead for _, spec in parts)
+            and sum(math.prod(spec[1][len(lead):]) for _, spec in parts) == shape[-1]):
+      return None
+    sources.append(sorted(i for i, _ in parts))
+  identity = all(src == [i] for i, src in enumerate(sources)) and len(sources) == len(got)
+  return None if identity else sources
 
 
 def load_state(run_dir: str | Path, template: Any, best_template: Any = None) -> SavedState:
@@ -389,22 +405,22 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
   info = load_state_info(run_dir)
   d = _resolve(state_dir(Path(run_dir).resolve()))
 
-  def fits(got, tree):  # (treedef, leaf specs, saved index per leaf)
-    legacy = _legacy_order(got, [[jax.tree_util.keystr(p), list(x.shape), str(np.dtype(x.dtype))]
-                                 for p, x in jax.tree_util.tree_flatten_with_path(tree)[0]])
+  def fits(got, tree):  # (treedef, saved leaf specs, saved indices per leaf of tree)
+    flat = jax.tree_util.tree_flatten_with_path(tree)[0]
+    legacy = _legacy_sources(got, _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat]))
     if legacy is not None:
-      return jax.tree_util.tree_structure(tree), [got[i] for i in legacy], legacy
+      return jax.tree_util.tree_structure(tree), got, legacy
     treedef, want = _check_fits(d, got, tree)
-    return treedef, want, list(range(len(want)))
+    return treedef, want, [[i] for i in range(len(want))]
 
   treedef, want, state_idx = fits(info.get("leaves", []), template)
   with_best = best_template is not None and "best_leaves" in info
   best_def, best_want, best_idx = fits(info["best_leaves"], best_template) if with_best else (None, [], [])
   try:
     arrays = ocp.PyTreeCheckpointer().restore(d / "arrays")
-    group = lambda name, idx: [np.asarray(arrays[name][f"{i:05d}"]) for i in idx]
-    state, best = group("state", state_idx), group("best", best_idx)
-    hist = dict(zip([h[0] for h in info.get("history", [])], group("history", range(len(info.get("history", []))))))
+    group = lambda name, n: [np.asarray(arrays[name][f"{i:05d}"]) for i in range(n)]
+    state, best = group("state", len(want)), group("best", len(best_want))
+    hist = dict(zip([h[0] for h in info.get("history", [])], group("history", len(info.get("history", [])))))
   except Exception as e:  # orbax raises several types for damaged files
     raise CheckpointError(f"corrupt training state in {d / 'arrays'} ({type(e).__name__}: {e}); "
                           f"delete {d} to start over, or restore it from a backup") from e
@@ -413,8 +429,14 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
     if list(x.shape) != shape or str(x.dtype) != dtype:
       raise CheckpointError(f"corrupt training state in {d}: {name} has shape {x.shape} {x.dtype}, "
                             f"state.json says {shape} {dtype}; delete {d} to start over")
-  return SavedState(jax.tree_util.tree_unflatten(treedef, state), hist, info,
-                    jax.tree_util.tree_unflatten(best_def, best) if with_best else None)
+  # one leaf per saved leaf, or (legacy states) several raveled into one
+  def pick(xs, idx, tree):
+    leaves = jax.tree.leaves(tree)
+    return [xs[i[0]] if len(i) == 1 and xs[i[0]].shape == tuple(leaf.shape) else
+            np.concatenate([xs[j].reshape(tuple(leaf.shape[:-1]) + (-1,)) for j in i], axis=-1)
+            for i, leaf in zip(idx, leaves)]
+  return SavedState(jax.tree_util.tree_unflatten(treedef, pick(state, state_idx, template)), hist, info,
+                    jax.tree_util.tree_unflatten(best_def, pick(best, best_idx, best_template)) if with_best else None)
 
 
 def differences(saved: Any, requested: Any, path: str = "") -> list[str]:
