@@ -316,13 +316,19 @@ def hyperparams(config: SACConfig, hyper: dict | None = None) -> dict:
   return {k: getattr(config, k) for k in SWEEPABLE} | dict(hyper or {})
 
 
+# Networks no wider than this run Adam on their parameters raveled into one vector (optax.flatten):
+# XLA:CPU then runs the step as a few kernels instead of a few per layer, a large share of a small
+# network's update. Wider ones keep per-layer moments: raveling gained nothing there (BENCHMARKS.md).
+RAVEL_MAX_WIDTH = 256
+
+
 def make_optimizers(config: SACConfig, hyper: dict | None = None):
   """(policy, q, alpha) optax optimisers: plain Adam (learning rates from :func:`hyperparams`; Adam's
-  state does not depend on them), each on its parameters raveled into one vector (``optax.flatten``):
-  XLA:CPU then runs a network's Adam step as a few kernels instead of a few per layer, which is most
-  of an update's cost for small networks."""
+  state does not depend on them), raveled for networks up to :data:`RAVEL_MAX_WIDTH` units wide."""
   h = hyperparams(config, hyper)
-  return tuple(optax.flatten(optax.adam(h[k])) for k in ("actor_lr", "critic_lr", "alpha_lr"))
+  ravel = max(config.hidden_sizes + config.critic_sizes) <= RAVEL_MAX_WIDTH
+  return tuple((optax.flatten if ravel else lambda o: o)(optax.adam(h[k]))
+               for k in ("actor_lr", "critic_lr", "alpha_lr"))
 
 
 def target_part(networks: nets.SACNetworks, q_params: Params) -> Params:

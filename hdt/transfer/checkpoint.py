@@ -374,7 +374,7 @@ def _legacy_sources(got: list, want: list) -> list[list[int]] | None:
   ``want`` (one leaf, or several raveled and concatenated); None if ``got`` is not such a state or the
   conversions below do not make it fit. Two conversions: the observation statistics that lived inside
   the networks (:data:`_LEGACY_NORM`; their other copies are dropped), and the Adam moments kept per
-  layer before the optimisers raveled each network's parameters (``hdt.agents.sac.make_optimizers``):
+  layer before the optimisers raveled each small network's parameters (``hdt.agents.sac.make_optimizers``):
   ``...mu['params']...`` leaves become one ``...mu`` vector, in pytree order (as ``optax.flatten``)."""
   legacy_norm = any(f"['{NORM}']" in g[0] for g in got)
   index = {}
