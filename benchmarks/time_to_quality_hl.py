@@ -1,7 +1,7 @@
 """Time to quality on a high level: hdt vs SBX on a PM HL over the same frozen LL.
 
     python benchmarks/time_to_quality_hl.py [--task waypoint|push1] [--seeds 2] [--first-seed 0] [--quick] [--check] [--low-run DIR]
-        [--hdt-configs NAME,...] [--skip-sbx] [--skip-hdt] [--sbx-max-minutes 3]
+        [--hdt-configs NAME,...] [--vmapped-seeds] [--skip-sbx] [--skip-hdt] [--sbx-max-minutes 3]
         [--hdt-max-minutes 1.5] [--out FILE] [--compile-cache DIR] [--recompute]
 
 The third task of issue 8's time-to-quality item, next to the LL reach tasks of
@@ -19,6 +19,11 @@ Two tasks (``--task``, ``TASKS`` below):
   HL env is built the same way; everything below that says "Waypoint" holds for it with "success rate"
   for "return".
 Both learners train an HL over the LL's seed-0 policy.
+
+Seeds: each seed trains on its own, and each side's median over seeds is compared. With
+``--vmapped-seeds`` each hdt config also trains all the seeds together as one vmapped program (split
+over the cores, as the CLI runs seeds) until every seed has reached quality; that wall-clock is
+compared with SBX's seeds run one after another (``..._all_seeds`` in results.json).
 
 Task: ``hdt.transfer.pipeline.high_env("waypoint", DIR)``, hdt's HL env: one HL action is a relative
 sub-goal in [-1, 1]^2 (times delta_max = 4 m), one HL step is k = 32 LL steps of the frozen
@@ -73,6 +78,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
+from hdt.agents.sharding import use_cpu_cores  # noqa: E402
 from hdt.cache import enable_compile_cache  # noqa: E402
 from hdt.transfer import checkpoint as ckpt  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
@@ -120,6 +126,8 @@ HDT_CONFIGS = {
     "e16_u64_b64_norm": dict(num_envs=16, updates_per_step=64, batch_size=64, normalize_observations=True),
 }
 
+
+VMAPPED = "_vmapped"  # suffix of a config's name when its seeds train as one vmapped program
 
 # ------------------------------------------------------------------------------------------------
 # The frozen LL and the HL env
@@ -218,15 +226,16 @@ def make_gym_env(env, seed: int | None = None):
 # The two learners (training loops shared with the LL benchmark)
 
 
-def run_hdt(task, low_dir, overrides, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+def run_hdt(task, low_dir, overrides, seeds, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+  """One result per seed of ``seeds``: trained together in one vmapped program if several."""
   t0 = time.perf_counter()
   env = pipeline.high_env(task, low_dir)
   cfg = configs.high_config(task, total_env_steps=max_steps,
                             steps_per_chunk=eval_every // overrides["num_envs"], **overrides)
   metric = TASKS[task]["metric"]
   make_eval = lambda trainer: make_hl_evaluator(env, ttq.hdt_policy_fn(trainer.networks), episodes, metric)
-  return ttq.hdt_loop("hdt HL", env, cfg, seed, make_eval, thresholds, max_seconds, log, t0,
-                      higher=True, metric_name=metric)
+  return ttq.hdt_loop_seeds("hdt HL", env, cfg, seeds, make_eval, thresholds, max_seconds, log, t0,
+                            higher=True, metric_name=metric)
 
 
 def run_sbx(task, low_dir, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
@@ -324,6 +333,7 @@ def join_earlier(res: dict, old: dict, skip_sbx: bool, skip_hdt: bool) -> None:
 
 
 def main():
+  use_cpu_cores()  # as the CLI: one JAX device per core, so vmapped seeds split over the cores
   ap = argparse.ArgumentParser()
   ttq.add_run_args(ap, hdt_configs=HDT_CONFIGS, seeds=2, sbx_minutes=3.0, hdt_minutes=1.5, episodes=32)
   ap.add_argument("--task", choices=sorted(TASKS), default="waypoint", help="the HL task (module docstring)")
@@ -334,6 +344,10 @@ def main():
   ap.add_argument("--extra-thresholds", help="override the extra thresholds (comma-separated)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (HL env steps)")
   ap.add_argument("--max-steps", type=int, help="override the HL env-step cap per seed")
+  ap.add_argument("--vmapped-seeds", action="store_true",
+                  help=f"also train each hdt config's seeds together as one vmapped program (config name + "
+                       f"'{VMAPPED}'; the seeds split over the cores, as the CLI runs them) and compare the "
+                       "wall-clock until all seeds reached quality with SBX's seeds run one after another")
   ap.add_argument("--low-run", help="the frozen LL: a run dir or zoo name (default: waypoint's point LL, "
                   "trained into a temp dir if missing; push1's zoo:arm_point/low)")
   ap.add_argument("--recompute", action="store_true",
@@ -400,9 +414,11 @@ def main():
   log(f"== PM {args.task} HL over {low['dir']}: quality = eval {task['metric']} >= {thrs} (load {ttq.load()})")
   if not args.skip_hdt:
     for name in hdt_names:
-      runs = [run_hdt(args.task, args.low_run, HDT_CONFIGS[name], s, thrs, every, cap, 60 * args.hdt_max_minutes,
-                      args.eval_episodes, log) for s in seeds]
-      res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=runs)
+      run = lambda ss: run_hdt(args.task, args.low_run, HDT_CONFIGS[name], ss, thrs, every, cap,
+                               60 * args.hdt_max_minutes, args.eval_episodes, log)
+      res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=[r for s in seeds for r in run([s])])
+      if args.vmapped_seeds and len(seeds) > 1:
+        res["hdt"][name + VMAPPED] = dict(overrides=HDT_CONFIGS[name], runs=run(seeds))
   if not args.skip_sbx:
     runs = [run_sbx(args.task, args.low_run, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
                     args.eval_episodes, log) for s in seeds]
