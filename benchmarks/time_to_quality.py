@@ -437,15 +437,16 @@ def update_results(out, source="benchmarks/time_to_quality.py"):
     if pick is None:
       continue
     thr, c = pick
+    key = r.get("results_key", f"sbx_speedup_{a}_reach")
     lb = ", SBX did not reach it in every seed: lower bound" if c["speedup_is_lower_bound"] else ""
     if c.get("hdt_all_seeds_reached") and c["sbx"]["all_reached"]:
       n = c["hdt"][c["hdt_best_all_seeds"]]
-      results_lib.update({r.get("results_key", f"sbx_speedup_{a}_reach") + "_all_seeds": c["speedup_all_seeds"]},
+      results_lib.update({key + "_all_seeds": c["speedup_all_seeds"]},
                          f"{source}: wall-clock until all {n['seeds']} seeds reached {thr:g}, SBX's seeds one "
                          f"after another, hdt {c['hdt_best_all_seeds']}"
                          + (" (seeds vmapped)" if n["vmapped_seeds"] else ""),
                          load=out["machine"].get("load_end"))
-    results_lib.update({r.get("results_key", f"sbx_speedup_{a}_reach"): c["speedup_seconds"]},
+    results_lib.update({key: c["speedup_seconds"]},
                        f"{source}: median wall-clock incl. JIT compile, "
                        f"threshold {r['metric'] + ('>= ' if higher else '< ') if 'metric' in r else ''}"
                        f"{thr:g}{r.get('unit', ' m')}, hdt {c['hdt_best']}{lb}",

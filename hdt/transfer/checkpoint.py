@@ -348,10 +348,8 @@ class SavedState(NamedTuple):
   best: Any  # structured as best_template; None when not asked for or not saved
 
 
-def _check_fits(d: Path, got: list, template) -> tuple[Any, list]:
-  """(treedef, leaf specs) of ``template``, refused unless they equal the saved specs ``got``."""
-  flat, treedef = jax.tree_util.tree_flatten_with_path(template)
-  want = _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat])
+def _check_fits(d: Path, got: list, want: list) -> None:
+  """Refuses a saved state whose leaf specs ``got`` are not the specs ``want`` this run needs."""
   if got != want:
     fmt = lambda spec: f"{spec[0]} {spec[2]}{spec[1]}" if spec else "nothing"
     saved, needed = next(((g, w) for g, w in zip(got, want) if g != w),
@@ -359,7 +357,6 @@ def _check_fits(d: Path, got: list, template) -> tuple[Any, list]:
     raise CheckpointError(f"the training state in {d} does not fit this run (saved {fmt(saved)} where "
                           f"this run needs {fmt(needed)}): it was written by another configuration or hdt "
                           f"version; start a new run in another out= directory")
-  return treedef, want
 
 
 # Where a state saved when the statistics lived inside the networks kept them (keystr prefixes, old ->
@@ -405,38 +402,40 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
   info = load_state_info(run_dir)
   d = _resolve(state_dir(Path(run_dir).resolve()))
 
-  def fits(got, tree):  # (treedef, saved leaf specs, saved indices per leaf of tree)
-    flat = jax.tree_util.tree_flatten_with_path(tree)[0]
-    legacy = _legacy_sources(got, _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat]))
-    if legacy is not None:
-      return jax.tree_util.tree_structure(tree), got, legacy
-    treedef, want = _check_fits(d, got, tree)
-    return treedef, want, [[i] for i in range(len(want))]
+  def fits(got, tree):  # (treedef, saved indices per leaf of tree, shape per leaf of tree)
+    flat, treedef = jax.tree_util.tree_flatten_with_path(tree)
+    want = _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat])
+    sources = _legacy_sources(got, want)
+    if sources is None:
+      _check_fits(d, got, want)
+      sources = [[i] for i in range(len(want))]
+    return treedef, sources, [tuple(spec[1]) for spec in want]
 
-  treedef, want, state_idx = fits(info.get("leaves", []), template)
+  saved = info.get("leaves", [])
+  treedef, state_idx, shapes = fits(saved, template)
   with_best = best_template is not None and "best_leaves" in info
-  best_def, best_want, best_idx = fits(info["best_leaves"], best_template) if with_best else (None, [], [])
+  best_saved = info["best_leaves"] if with_best else []
+  best_def, best_idx, best_shapes = fits(best_saved, best_template) if with_best else (None, [], [])
   try:
     arrays = ocp.PyTreeCheckpointer().restore(d / "arrays")
     group = lambda name, n: [np.asarray(arrays[name][f"{i:05d}"]) for i in range(n)]
-    state, best = group("state", len(want)), group("best", len(best_want))
+    state, best = group("state", len(saved)), group("best", len(best_saved))
     hist = dict(zip([h[0] for h in info.get("history", [])], group("history", len(info.get("history", [])))))
   except Exception as e:  # orbax raises several types for damaged files
     raise CheckpointError(f"corrupt training state in {d / 'arrays'} ({type(e).__name__}: {e}); "
                           f"delete {d} to start over, or restore it from a backup") from e
-  for (name, shape, dtype), x in zip(want + info.get("history", []) + best_want,
+  for (name, shape, dtype), x in zip(saved + info.get("history", []) + best_saved,
                                      state + list(hist.values()) + best):
     if list(x.shape) != shape or str(x.dtype) != dtype:
       raise CheckpointError(f"corrupt training state in {d}: {name} has shape {x.shape} {x.dtype}, "
                             f"state.json says {shape} {dtype}; delete {d} to start over")
-  # one leaf per saved leaf, or (legacy states) several raveled into one
-  def pick(xs, idx, tree):
-    leaves = jax.tree.leaves(tree)
-    return [xs[i[0]] if len(i) == 1 and xs[i[0]].shape == tuple(leaf.shape) else
-            np.concatenate([xs[j].reshape(tuple(leaf.shape[:-1]) + (-1,)) for j in i], axis=-1)
-            for i, leaf in zip(idx, leaves)]
-  return SavedState(jax.tree_util.tree_unflatten(treedef, pick(state, state_idx, template)), hist, info,
-                    jax.tree_util.tree_unflatten(best_def, pick(best, best_idx, best_template)) if with_best else None)
+
+  def pick(xs, idx, shapes):  # one saved leaf per leaf, or (legacy states) several raveled into one
+    return [xs[i[0]] if len(i) == 1 and xs[i[0]].shape == shape else
+            np.concatenate([xs[j].reshape(shape[:-1] + (-1,)) for j in i], axis=-1)
+            for i, shape in zip(idx, shapes)]
+  return SavedState(jax.tree_util.tree_unflatten(treedef, pick(state, state_idx, shapes)), hist, info,
+                    jax.tree_util.tree_unflatten(best_def, pick(best, best_idx, best_shapes)) if with_best else None)
 
 
 def differences(saved: Any, requested: Any, path: str = "") -> list[str]:
