@@ -127,8 +127,6 @@ HDT_CONFIGS = {
 }
 
 
-VMAPPED = "_vmapped"  # suffix of a config's name when its seeds train as one vmapped program
-
 # ------------------------------------------------------------------------------------------------
 # The frozen LL and the HL env
 
@@ -344,10 +342,6 @@ def main():
   ap.add_argument("--extra-thresholds", help="override the extra thresholds (comma-separated)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (HL env steps)")
   ap.add_argument("--max-steps", type=int, help="override the HL env-step cap per seed")
-  ap.add_argument("--vmapped-seeds", action="store_true",
-                  help=f"also train each hdt config's seeds together as one vmapped program (config name + "
-                       f"'{VMAPPED}'; the seeds split over the cores, as the CLI runs them) and compare the "
-                       "wall-clock until all seeds reached quality with SBX's seeds run one after another")
   ap.add_argument("--low-run", help="the frozen LL: a run dir or zoo name (default: waypoint's point LL, "
                   "trained into a temp dir if missing; push1's zoo:arm_point/low)")
   ap.add_argument("--recompute", action="store_true",
@@ -418,7 +412,7 @@ def main():
                                60 * args.hdt_max_minutes, args.eval_episodes, log)
       res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=[r for s in seeds for r in run([s])])
       if args.vmapped_seeds and len(seeds) > 1:
-        res["hdt"][name + VMAPPED] = dict(overrides=HDT_CONFIGS[name], runs=run(seeds))
+        res["hdt"][name + ttq.VMAPPED] = dict(overrides=HDT_CONFIGS[name], runs=run(seeds))
   if not args.skip_sbx:
     runs = [run_sbx(args.task, args.low_run, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
                     args.eval_episodes, log) for s in seeds]
