@@ -317,6 +317,19 @@ def check(agents):
     print(f"{agent}: hdt vs gym port over 40 random steps: max |obs diff| {od:.2e}, max |reward diff| {rd:.2e}")
 
 
+def hdt_rows(hdt_configs, names, run, seeds, vmapped_seeds=False):
+  """``{config name: dict(overrides, runs)}`` for the hdt ``names``: each seed on its own
+  (``run(overrides, [seed])``), and with ``vmapped_seeds`` also all seeds as one vmapped program under
+  the name + :data:`VMAPPED` (``run(overrides, seeds)``; each returns one result per seed)."""
+  rows = {}
+  for name in names:
+    overrides = hdt_configs[name]
+    rows[name] = dict(overrides=overrides, runs=[r for s in seeds for r in run(overrides, [s])])
+    if vmapped_seeds and len(seeds) > 1:
+      rows[name + VMAPPED] = dict(overrides=overrides, runs=run(overrides, seeds))
+  return rows
+
+
 def add_run_args(ap, *, hdt_configs, seeds, sbx_minutes, hdt_minutes, episodes):
   """The options every time-to-quality benchmark shares (this one and time_to_quality_hl.py)."""
   ap.add_argument("--seeds", type=int, default=seeds)
@@ -386,11 +399,12 @@ def main():
 
   for agent in agents:
     task = dict(TASKS[agent], **(QUICK[agent] if args.quick else {}))
-    metric = args.metric or task.get("metric", "dist")
+    default_metric = task.get("metric", "dist")
+    metric = args.metric or default_metric
     success = metric == "success"
-    if metric != task.get("metric", "dist") and args.threshold is None:
+    if metric != default_metric and args.threshold is None:
       raise SystemExit(f"--metric {metric} for {agent} needs --threshold (its default quality is "
-                       f"{task.get('metric', 'dist')} {task['threshold']}); e.g. --threshold 0.65")
+                       f"{default_metric} {task['threshold']}); e.g. --threshold 0.65")
     for k in ("threshold", "eval_every", "max_steps"):
       if getattr(args, k) is not None:
         task[k] = getattr(args, k)
@@ -403,17 +417,14 @@ def main():
     if success:
       res.update(higher=True, unit="", metric="success within the reach radius ",
                  results_key=f"sbx_speedup_{agent}_reach_success")
-    if success and "metric" in TASKS[agent] and args.threshold is None:  # the agent's defined quality
+    if success and default_metric == "success" and args.threshold is None:  # the agent's defined quality
       res.update(results_key=f"sbx_speedup_{agent}_ll_paper_quality", primary_only=True)
     log(f"== {agent} reach: quality = " + (f"success rate >= {thrs}" if success else f"mean final goal distance < {thrs} m")
         + f" (load {load()})")
     if not args.skip_hdt:
-      for name in hdt_names:
-        run = lambda ss: run_hdt(agent, HDT_CONFIGS[name], ss, thrs, every, cap, 60 * args.hdt_max_minutes,
-                                 args.eval_episodes, log, metric)
-        res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=[r for s in seeds for r in run([s])])
-        if args.vmapped_seeds and len(seeds) > 1:
-          res["hdt"][name + VMAPPED] = dict(overrides=HDT_CONFIGS[name], runs=run(seeds))
+      res["hdt"] = hdt_rows(HDT_CONFIGS, hdt_names, lambda ov, ss: run_hdt(
+          agent, ov, ss, thrs, every, cap, 60 * args.hdt_max_minutes, args.eval_episodes, log, metric),
+          seeds, args.vmapped_seeds)
     if not args.skip_sbx:
       runs = [run_sbx(agent, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
                       args.eval_episodes, log, metric) for s in seeds]

@@ -407,12 +407,9 @@ def main():
              primary_only=task["primary_only"])
   log(f"== PM {args.task} HL over {low['dir']}: quality = eval {task['metric']} >= {thrs} (load {ttq.load()})")
   if not args.skip_hdt:
-    for name in hdt_names:
-      run = lambda ss: run_hdt(args.task, args.low_run, HDT_CONFIGS[name], ss, thrs, every, cap,
-                               60 * args.hdt_max_minutes, args.eval_episodes, log)
-      res["hdt"][name] = dict(overrides=HDT_CONFIGS[name], runs=[r for s in seeds for r in run([s])])
-      if args.vmapped_seeds and len(seeds) > 1:
-        res["hdt"][name + ttq.VMAPPED] = dict(overrides=HDT_CONFIGS[name], runs=run(seeds))
+    res["hdt"] = ttq.hdt_rows(HDT_CONFIGS, hdt_names, lambda ov, ss: run_hdt(
+        args.task, args.low_run, ov, ss, thrs, every, cap, 60 * args.hdt_max_minutes, args.eval_episodes, log),
+        seeds, args.vmapped_seeds)
   if not args.skip_sbx:
     runs = [run_sbx(args.task, args.low_run, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
                     args.eval_episodes, log) for s in seeds]
