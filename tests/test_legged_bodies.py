@@ -137,6 +137,8 @@ def test_ant_bodies(agent):
 
 def test_ant_contacts_on_the_plane():
   m = build_model(agent_spec("ant"), get_task("reach"))
+  # the composed model runs the agent file's RK4 at 0.01 s (ant_gather.xml), not the scene's defaults
+  assert m.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4 and m.opt.timestep == 0.01
   # ant_gather.xml with its floor: the 13 robot geoms against the floor only (robot bits 1/0)
   assert colliding_pairs(m) == (13, 0)
   # the contact margin the authors' MuJoCo 1.50 gave (the larger of robot 0.01 and floor 0.01):
