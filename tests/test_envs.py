@@ -10,9 +10,11 @@ import pytest
 import hdt.envs as E
 from hdt.envs.tasks import Insert, Maze, Push, Reach, Waypoint
 
-# obs_lo sizes by SPEC 2: PM vel(2); ants qpos[2:] + qvel + 4 foot contacts; arms cos, sin, vel.
-OBS_LO = {"point": 2, "ant": 13 + 14 + 4, "ant3": 11 + 12 + 4, "ant2": 9 + 10 + 4,
-          "quadruped": 17 + 18 + 4, "arm_point": 2, "arm2": 6, "arm3": 9, "arm4": 12}
+# obs_lo sizes of the authors' state() minus the goal terms: PM qvel (2); legged qpos[2:] + qvel +
+# clipped cfrc_ext of their models' bodies (ant.py: 16 bodies, 96; quadruped.py: 20 bodies, 120;
+# their ant + 2 = 125 and quadruped + 2 = 165 numbers with g - xy); arms cos, sin, vel.
+OBS_LO = {"point": 2, "ant": 13 + 14 + 96, "ant3": 11 + 12 + 96, "ant2": 9 + 10 + 96,
+          "quadruped": 21 + 22 + 120, "arm_point": 2, "arm2": 6, "arm3": 9, "arm4": 12}
 ACTIONS = {"point": 2, "ant": 8, "ant3": 6, "ant2": 4, "quadruped": 12, "arm_point": 2, "arm2": 2,
            "arm3": 3, "arm4": 4}
 
@@ -47,8 +49,10 @@ def test_registry_errors_list_valid_names():
     E.make("point", "reach", gear=3)
 
 
-def q(point, **kw):
-  return {"point": jnp.asarray(point, jnp.float32), **{k: jnp.asarray(v, jnp.float32) for k, v in kw.items()}}
+def q(point, z=0.0, **kw):
+  """Quantities at goal-space point ``point`` (torso or tip) of height ``z``."""
+  return {"point": jnp.asarray(point, jnp.float32), "z": jnp.float32(z),
+          **{k: jnp.asarray(v, jnp.float32) for k, v in kw.items()}}
 
 
 def test_reach_rewards_by_hand():
@@ -76,12 +80,18 @@ def test_hl_rewards_by_hand():
   key = jax.random.PRNGKey(0)
   pm = E.AGENTS["point"]
   t = {"waypoint": jnp.array([3.0, 4.0])}
+  # point_mass.py PointMassMJ.post_action / high_level_reward: the 3-D distance from the torso
+  # origin (z = 0 for the point mass) to the target body at z = 0.3
   r, _, t2, _ = Waypoint().reward(key, pm, q([0, 0]), q([0, 0]), jnp.zeros(2), t, 0.06)
-  assert np.isclose(r, -0.5) and np.allclose(t2["waypoint"], [3, 4])
-  r, _, t2, m = Waypoint().reward(key, pm, q([0, 0]), q([3.0, 3.7]), jnp.zeros(2), t, 0.06)
-  # point_mass.py PointMassMJ.high_level_reward: exactly 100 when reached (no distance term)
+  assert np.isclose(r, -0.1 * np.sqrt(25 + 0.09)) and np.allclose(t2["waypoint"], [3, 4])
+  r, _, t2, m = Waypoint().reward(key, pm, q([0, 0]), q([3.0, 3.62]), jnp.zeros(2), t, 0.06)
+  # exactly 100 when reached (no distance term): 0.38 m in the plane is 0.48 m in 3-D
   assert np.isclose(r, 100.0) and m["waypoints"] == 1.0
   assert not np.allclose(t2["waypoint"], [3, 4])  # a new waypoint appeared
+  r, _, _, m = Waypoint().reward(key, pm, q([0, 0]), q([3.0, 3.58]), jnp.zeros(2), t, 0.06)
+  assert m["waypoints"] == 0.0  # 0.42 m in the plane is 0.52 m in 3-D: not reached
+  r, _, _, m = Waypoint().reward(key, pm, q([0, 0]), q([3.0, 3.62], z=0.7), jnp.zeros(2), t, 0.06)
+  assert m["waypoints"] == 0.0  # an ant torso 0.4 m above the target is not there yet
   maze = Maze(goal="end")
   t = maze.sample(key, pm, q([0, 0]))
   assert np.allclose(t["goal"], [0, 16])
@@ -123,8 +133,8 @@ def test_reach_keeps_robot_between_episodes():
   goal0 = s.task["t"]["goal"]
   for _ in range(5):
     s = step(s, jnp.array([1.0, 0.0]))
-  assert s.done == 1.0 and s.discount == 1.0  # time limit: bootstrap
-  assert s.physics.qpos[0] > 0.3  # robot kept where it was ...
+  assert s.done == 1.0 and s.discount == 1.0  # time limit: not a fall (SACConfig decides the target)
+  assert s.physics.qpos[0] > 0.1  # robot kept where it was (0.126 m at 2.8 m/s^2 for 0.3 s) ...
   assert not np.allclose(s.task["t"]["goal"], goal0)  # ... with a new goal
   np.testing.assert_allclose(s.obs[-2:], s.task["t"]["goal"] - s.obs_hi[:2], atol=1e-6)
 

@@ -22,7 +22,9 @@ pytestmark = pytest.mark.skipif(not native_ffi.available(), reason="no C++ compi
 def test_custom_call_equals_callback(agent, task):
   env = E.make(agent, task, backend="native")
   m, fs = env.mj_model, env.agent.frame_skip
-  ffi, cb = NativePhysics(m, fs, use_ffi=True), NativePhysics(m, fs, use_ffi=False)
+  cf = env.agent.contact_forces
+  ffi = NativePhysics(m, fs, use_ffi=True, contact_forces=cf)
+  cb = NativePhysics(m, fs, use_ffi=False, contact_forces=cf)
   ps = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(0), 5)).physics
   acts = jax.random.uniform(jax.random.PRNGKey(1), (20, 5, m.nu), minval=-1, maxval=1)
 

@@ -26,6 +26,8 @@ AGENTS: dict[str, AgentSpec] = {
 # noise (InsertPM.reset); the arms' insert files only add the peg (and the slot wall).
 VARIANTS: dict[tuple[str, str], dict] = {
     ("arm_point", "insert"): dict(xml="arm_point_insert.xml", init_noise=0.1),
+    # maze.py PointMaze: agent_size 0.5 (the open arena's point mass is 0.4)
+    ("point", "maze"): dict(xml="point_maze.xml"),
 }
 
 

@@ -29,7 +29,7 @@ class AgentTaskEnv:
                        f"{agent.family} agent")
     self.agent, self.task = agent, task
     self.mj_model = m = build_model(agent, task)
-    self.physics = make_physics(m, agent.frame_skip, backend)
+    self.physics = make_physics(m, agent.frame_skip, backend, contact_forces=agent.contact_forces)
     self.backend = self.physics.name
     self.dt = float(m.opt.timestep * agent.frame_skip)
     self.horizon = task.horizon(agent)
@@ -91,6 +91,8 @@ class AgentTaskEnv:
                                  or [np.zeros(0, int)])
     self._rays = np.concatenate([sensor(n) for n in names if n.startswith(AGENT_PREFIX + "ray")]
                                 or [np.zeros(0, int)])
+    root = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, AGENT_PREFIX + "root")
+    self._bodies = np.flatnonzero(m.body_rootid == root)  # the robot's bodies, in tree order
     lo, hi = m.actuator_ctrlrange.T
     self._ctrl_lo, self._ctrl_hi = np.float32(lo), np.float32(hi)
 
@@ -109,7 +111,15 @@ class AgentTaskEnv:
     qp, qv = ps.qpos[self._qpos_idx], ps.qvel[self._qvel_idx]
     qp = jnp.concatenate([jnp.cos(qp), jnp.sin(qp)]) if self.agent.trig_angles else qp[self.agent.qpos_skip:]
     touch = jnp.clip(ps.sensordata[self._touch] / self.agent.contact_clip, 0.0, 1.0)
-    return jnp.concatenate([qp, qv, touch, ps.sensordata[self._rays]])
+    return jnp.concatenate([qp, qv, self.contact_obs(ps), touch, ps.sensordata[self._rays]])
+
+  def contact_obs(self, ps: PhysicsState) -> jax.Array:
+    """The robot's clipped cfrc_ext rows between the authors' zero rows (AgentSpec.contact_rows)."""
+    if not self.agent.contact_forces:
+      return jnp.zeros((0,), jnp.float32)
+    before, after = self.agent.contact_rows
+    rows = jnp.clip(ps.cfrc_ext.reshape(-1, 6)[self._bodies], -1.0, 1.0).reshape(-1)
+    return jnp.concatenate([jnp.zeros(6 * before), rows, jnp.zeros(6 * after)])
 
   def observe(self, ps, q, t):
     """(obs_lo, obs_hi, policy obs) of physics state ``ps`` with quantities ``q`` and task state ``t``."""

@@ -27,7 +27,9 @@ def _add_rangefinders(spec: mujoco.MjSpec, n: int, tilt=0.5, cutoff=4.0, height=
 def build_model(agent: AgentSpec, task: Task) -> mujoco.MjModel:
   scene = mujoco.MjSpec.from_file(str(XML_DIR / "scenes" / task.scene(agent)))
   agent_spec = mujoco.MjSpec.from_file(str(agent.xml_path))
-  scene.option.timestep = agent_spec.option.timestep  # the agent owns its integration step
+  # The agent owns its integration: step and integrator (the authors' files differ per robot).
+  scene.option.timestep = agent_spec.option.timestep
+  scene.option.integrator = agent_spec.option.integrator
   if agent.gear_scale != 1.0:
     for act in agent_spec.actuators:
       act.gear = [g * agent.gear_scale for g in act.gear]

@@ -1,8 +1,9 @@
 // The native MuJoCo backend as an XLA FFI custom call (CPU).
 //
-// Same semantics as one mujoco.rollout call per env step (python/mujoco/rollout.cc): per env, set
-// (time, qpos, qvel), zero the solver warm-start and applied forces, hold ctrl for frame_skip
-// mj_step's (stop stepping on a MuJoCo warning), return the state and the last step's sensordata.
+// Per env: set (time, qpos, qvel, act), zero the solver warm-start and applied forces, hold ctrl for
+// frame_skip mj_step's (stop stepping on a MuJoCo warning), then run mj_forward on the final state so
+// that sensordata (and, when asked, cfrc_ext) describe the state after the step: mj_step computes
+// them before it integrates, one substep behind the returned qpos.
 // Why a custom call and not jax.pure_callback: no Python or numpy on the hot path, and programs
 // without host callbacks can be stored in JAX's persistent compilation cache.
 // Models are looked up by a content hash (an attribute of the call), so a cached program finds
@@ -59,22 +60,32 @@ void Release(Entry* e, mjData* d) {
 
 // Inputs that are not part of hdt's state are reset so that a result never depends on which
 // pooled mjData ran the env before.
-void SetState(const mjModel* m, mjData* d, float time, const float* qpos, const float* qvel) {
+void SetState(const mjModel* m, mjData* d, float time, const float* qpos, const float* qvel,
+              const float* act) {
   d->time = time;
   for (int i = 0; i < m->nq; i++) d->qpos[i] = qpos[i];
   for (int i = 0; i < m->nv; i++) d->qvel[i] = qvel[i];
+  for (int i = 0; i < m->na; i++) d->act[i] = act[i];
   mju_zero(d->qacc_warmstart, m->nv);
   mju_zero(d->qfrc_applied, m->nv);
   mju_zero(d->xfrc_applied, 6 * m->nbody);
   for (int i = 0; i < mjNWARNING; i++) d->warning[i].number = 0;
 }
 
-void GetState(const mjModel* m, const mjData* d, float* time, float* qpos, float* qvel,
-              float* sens) {
+// Observables of the state in d: forward dynamics first, so sensors read the final state.
+void GetState(const mjModel* m, mjData* d, bool cfrc, float* time, float* qpos, float* qvel,
+              float* act, float* sens, float* cfrc_ext) {
+  mju_zero(d->qacc_warmstart, m->nv);  // as every env step starts: the result never depends on history
+  mj_forward(m, d);
   *time = static_cast<float>(d->time);
   for (int i = 0; i < m->nq; i++) qpos[i] = static_cast<float>(d->qpos[i]);
   for (int i = 0; i < m->nv; i++) qvel[i] = static_cast<float>(d->qvel[i]);
+  for (int i = 0; i < m->na; i++) act[i] = static_cast<float>(d->act[i]);
   for (int i = 0; i < m->nsensordata; i++) sens[i] = static_cast<float>(d->sensordata[i]);
+  if (cfrc) {
+    mj_rnePostConstraint(m, d);  // not part of mj_forward unless a sensor needs it
+    for (int i = 0; i < 6 * m->nbody; i++) cfrc_ext[i] = static_cast<float>(d->cfrc_ext[i]);
+  }
 }
 
 bool Warned(const mjData* d) {
@@ -118,25 +129,29 @@ void ParallelFor(Entry* e, int64_t n, ffi::ThreadPool* pool, Fn fn) {
   job->cv.wait(lock, [&] { return job->done.load() == job->nchunk; });
 }
 
-ffi::Error CheckSizes(const mjModel* m, size_t n, size_t nq, size_t nv, size_t ns) {
-  if (nq != n * m->nq || nv != n * m->nv || ns != n * m->nsensordata) {
+ffi::Error CheckSizes(const mjModel* m, size_t n, size_t nq, size_t nv, size_t na, size_t ns,
+                      size_t nc, bool cfrc) {
+  if (nq != n * m->nq || nv != n * m->nv || na != n * m->na || ns != n * m->nsensordata ||
+      nc != (cfrc ? n * 6 * m->nbody : 0)) {
     return ffi::Error::InvalidArgument("hdt native physics: buffer sizes do not match the model");
   }
   return ffi::Error::Success();
 }
 
-ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip,
+ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip, int64_t cfrc,
                     ffi::Buffer<ffi::F32> time, ffi::Buffer<ffi::F32> qpos,
-                    ffi::Buffer<ffi::F32> qvel, ffi::Buffer<ffi::F32> ctrl,
-                    ffi::Buffer<ffi::F32> active, ffi::ResultBuffer<ffi::F32> time_out,
-                    ffi::ResultBuffer<ffi::F32> qpos_out, ffi::ResultBuffer<ffi::F32> qvel_out,
-                    ffi::ResultBuffer<ffi::F32> sens_out) {
+                    ffi::Buffer<ffi::F32> qvel, ffi::Buffer<ffi::F32> act,
+                    ffi::Buffer<ffi::F32> ctrl, ffi::Buffer<ffi::F32> active,
+                    ffi::ResultBuffer<ffi::F32> time_out, ffi::ResultBuffer<ffi::F32> qpos_out,
+                    ffi::ResultBuffer<ffi::F32> qvel_out, ffi::ResultBuffer<ffi::F32> act_out,
+                    ffi::ResultBuffer<ffi::F32> sens_out, ffi::ResultBuffer<ffi::F32> cfrc_out) {
   Entry* e = Find(model_id);
   if (!e) return ffi::Error::InvalidArgument("hdt native physics: model not registered");
   const mjModel* m = e->model;
   int64_t n = time.element_count();
   ffi::Error err = CheckSizes(m, n, qpos.element_count(), qvel.element_count(),
-                              sens_out->element_count());
+                              act.element_count(), sens_out->element_count(),
+                              cfrc_out->element_count(), cfrc != 0);
   if (err.failure()) return err;
   if (ctrl.element_count() != static_cast<size_t>(n * m->nu)) {
     return ffi::Error::InvalidArgument("hdt native physics: ctrl size does not match the model");
@@ -145,11 +160,14 @@ ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip,
     return ffi::Error::InvalidArgument("hdt native physics: active mask size does not match the batch");
   }
   const float *t_in = time.typed_data(), *qp = qpos.typed_data(), *qv = qvel.typed_data(),
-              *u = ctrl.typed_data(), *on = active.typed_data();
+              *ac = act.typed_data(), *u = ctrl.typed_data(), *on = active.typed_data();
   float *t_out = time_out->typed_data(), *qp_out = qpos_out->typed_data(),
-        *qv_out = qvel_out->typed_data(), *s_out = sens_out->typed_data();
+        *qv_out = qvel_out->typed_data(), *a_out = act_out->typed_data(),
+        *s_out = sens_out->typed_data(), *c_out = cfrc_out->typed_data();
+  const int64_t nc = cfrc ? 6 * m->nbody : 0;
   // Inactive envs (an HL step's LL loop that already stopped) are passed through unstepped, with
-  // zero sensors; only the active ones are stepped, compacted so the threads share them evenly.
+  // zero sensors and forces; only the active ones are stepped, compacted so the threads share them
+  // evenly.
   std::vector<int64_t> rows;
   rows.reserve(n);
   for (int64_t i = 0; i < n; i++) {
@@ -160,40 +178,47 @@ ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip,
     t_out[i] = t_in[i];
     std::copy(qp + i * m->nq, qp + (i + 1) * m->nq, qp_out + i * m->nq);
     std::copy(qv + i * m->nv, qv + (i + 1) * m->nv, qv_out + i * m->nv);
+    std::copy(ac + i * m->na, ac + (i + 1) * m->na, a_out + i * m->na);
     std::fill(s_out + i * m->nsensordata, s_out + (i + 1) * m->nsensordata, 0.0f);
+    std::fill(c_out + i * nc, c_out + (i + 1) * nc, 0.0f);
   }
   if (rows.empty()) return ffi::Error::Success();
   ParallelFor(e, static_cast<int64_t>(rows.size()), &pool, [&](mjData* d, int64_t j) {
     int64_t i = rows[j];
-    SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv);
+    SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv, ac + i * m->na);
     for (int k = 0; k < m->nu; k++) d->ctrl[k] = u[i * m->nu + k];
     for (int64_t s = 0; s < frame_skip && !Warned(d); s++) mj_step(m, d);
-    GetState(m, d, t_out + i, qp_out + i * m->nq, qv_out + i * m->nv,
-             s_out + i * m->nsensordata);
+    GetState(m, d, cfrc != 0, t_out + i, qp_out + i * m->nq, qv_out + i * m->nv,
+             a_out + i * m->na, s_out + i * m->nsensordata, c_out + i * nc);
   });
   return ffi::Error::Success();
 }
 
-ffi::Error ForwardImpl(int64_t model_id, ffi::Buffer<ffi::F32> time, ffi::Buffer<ffi::F32> qpos,
-                       ffi::Buffer<ffi::F32> qvel, ffi::ResultBuffer<ffi::F32> time_out,
+ffi::Error ForwardImpl(int64_t model_id, int64_t cfrc, ffi::Buffer<ffi::F32> time,
+                       ffi::Buffer<ffi::F32> qpos, ffi::Buffer<ffi::F32> qvel,
+                       ffi::Buffer<ffi::F32> act, ffi::ResultBuffer<ffi::F32> time_out,
                        ffi::ResultBuffer<ffi::F32> qpos_out, ffi::ResultBuffer<ffi::F32> qvel_out,
-                       ffi::ResultBuffer<ffi::F32> sens_out) {
+                       ffi::ResultBuffer<ffi::F32> act_out, ffi::ResultBuffer<ffi::F32> sens_out,
+                       ffi::ResultBuffer<ffi::F32> cfrc_out) {
   Entry* e = Find(model_id);
   if (!e) return ffi::Error::InvalidArgument("hdt native physics: model not registered");
   const mjModel* m = e->model;
   int64_t n = time.element_count();
   ffi::Error err = CheckSizes(m, n, qpos.element_count(), qvel.element_count(),
-                              sens_out->element_count());
+                              act.element_count(), sens_out->element_count(),
+                              cfrc_out->element_count(), cfrc != 0);
   if (err.failure()) return err;
-  const float *t_in = time.typed_data(), *qp = qpos.typed_data(), *qv = qvel.typed_data();
+  const float *t_in = time.typed_data(), *qp = qpos.typed_data(), *qv = qvel.typed_data(),
+              *ac = act.typed_data();
   float *t_out = time_out->typed_data(), *qp_out = qpos_out->typed_data(),
-        *qv_out = qvel_out->typed_data(), *s_out = sens_out->typed_data();
+        *qv_out = qvel_out->typed_data(), *a_out = act_out->typed_data(),
+        *s_out = sens_out->typed_data(), *c_out = cfrc_out->typed_data();
+  const int64_t nc = cfrc ? 6 * m->nbody : 0;
   ParallelFor(e, n, nullptr, [&](mjData* d, int64_t i) {
-    SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv);
+    SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv, ac + i * m->na);
     mju_zero(d->ctrl, m->nu);
-    mj_forward(m, d);
-    GetState(m, d, t_out + i, qp_out + i * m->nq, qv_out + i * m->nv,
-             s_out + i * m->nsensordata);
+    GetState(m, d, cfrc != 0, t_out + i, qp_out + i * m->nq, qv_out + i * m->nv,
+             a_out + i * m->na, s_out + i * m->nsensordata, c_out + i * nc);
   });
   return ffi::Error::Success();
 }
@@ -205,11 +230,15 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(HdtPhysicsStep, StepImpl,
                                   .Ctx<ffi::ThreadPool>()
                                   .Attr<int64_t>("model_id")
                                   .Attr<int64_t>("frame_skip")
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Attr<int64_t>("cfrc")  // 1: also return cfrc_ext
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // time
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // qpos
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // qvel
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // act
+                                  .Arg<ffi::Buffer<ffi::F32>>()  // ctrl
                                   .Arg<ffi::Buffer<ffi::F32>>()  // active (1 = step, 0 = pass through)
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
@@ -218,9 +247,13 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(HdtPhysicsStep, StepImpl,
 XLA_FFI_DEFINE_HANDLER_SYMBOL(HdtPhysicsForward, ForwardImpl,
                               ffi::Ffi::Bind()
                                   .Attr<int64_t>("model_id")
+                                  .Attr<int64_t>("cfrc")
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
                                   .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()
                                   .Ret<ffi::Buffer<ffi::F32>>()

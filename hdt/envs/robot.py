@@ -27,7 +27,8 @@ PREFIX = "hdt_"
 # AgentSpec fields a robot file may set as <numeric name="hdt_<field>">, with their number of entries
 # (None: any) and kind. name, family and xml are not numbers: the name is the path, the family a text.
 _INT = ("frame_skip", "k", "ll_horizon", "qpos_skip", "max_ll_episodes", "ll_budget")
-_SIZE = {"fall_z": 2, "open_noise": 2, "ll_qpos_noise": None, "ll_qpos_offset": None}
+_SIZE = {"fall_z": 2, "open_noise": 2, "ll_qpos_noise": None, "ll_qpos_offset": None, "contact_rows": 2}
+_BOOL = ("trig_angles", "free_joint_noise", "contact_forces")
 NUMERIC_FIELDS = tuple(f.name for f in dataclasses.fields(AgentSpec)
                        if f.name not in ("name", "family", "xml"))
 TEXT_FIELDS = ("family",)
@@ -180,10 +181,12 @@ def _value(where, field, values):
     if values[0] != int(values[0]):
       raise RobotError(f"{where}: hdt_{field} must be an integer, got {values[0]:g}")
     return int(values[0])
-  if field == "trig_angles":
+  if field in _BOOL:
     return bool(values[0])
   if size == 1:
     return float(values[0])
+  if field == "contact_rows":
+    return tuple(int(v) for v in values)
   return tuple(values)
 
 

@@ -23,6 +23,12 @@ class AgentSpec:
   trig_angles: bool = False  # observe hinge angles as (cos, sin)
   fall_z: tuple[float, float] | None = None  # torso height bounds; outside them the agent has fallen
   contact_clip: float = 10.0  # touch readings (N) are scaled by 1/contact_clip and clipped to [0, 1]
+  # The authors' legged observation: cfrc_ext of every body clipped to [-1, 1] (ant.py Ant.state,
+  # quadruped.py Quadruped.state). Their models hold the world body before the robot's bodies and
+  # two marker bodies (target, highlevel) after them, whose rows are always zero: contact_rows gives
+  # those (before, after) counts, so the layout is theirs and a policy runs unchanged in their env.
+  contact_forces: bool = False
+  contact_rows: tuple[int, int] = (1, 2)
   ctrl_cost: float = 0.5  # lambda of the LL action penalty
   survive_bonus: float = 0.0  # legged LL reward per step while not fallen
   reach_eps: float = 0.27  # epsilon_low: LL goal reached within this distance (m); ends an HL step early

@@ -210,7 +210,10 @@ class Waypoint(Task):
   family: str = "nav"
   hl_horizon: int = 50
   radius: float = 8.0
+  # point_mass.py / ant.py post_action: a waypoint is reached when the 3-D distance from the torso
+  # origin to the target body (at z = 0.3) is below epsilon_high 0.5; -0.1 * that distance otherwise.
   reach_dist: float = 0.5
+  target_z: float = 0.3
   bonus: float = 100.0
   # The HL sees the waypoint relative to the agent, not both absolute positions: measured at 6k HL
   # steps (2 seeds), absolute inputs -243 / 73, relative 1475 / 1551 (see hdt.transfer.hierarchy).
@@ -233,7 +236,7 @@ class Waypoint(Task):
     return jnp.concatenate([q["point"], t["waypoint"]])
 
   def reward(self, key, agent, q_prev, q, action, t, dt):
-    dist = jnp.linalg.norm(t["waypoint"] - q["point"])
+    dist = jnp.sqrt(jnp.sum(jnp.square(t["waypoint"] - q["point"])) + jnp.square(q["z"] - self.target_z))
     hit = dist < self.reach_dist
     t = {"waypoint": jnp.where(hit, _disc(key, self.radius), t["waypoint"])}
     return jnp.where(hit, self.bonus, -0.1 * dist), jnp.bool_(False), t, {"waypoints": hit.astype(jnp.float32), "dist": dist}
@@ -259,6 +262,7 @@ class Maze(Task):
   finetune_kl: ClassVar[float] = 0.01
   finetune_lr: ClassVar[float] = 1e-3
   headline: ClassVar[str] = "success"
+  agent_variant: ClassVar[str] = "maze"
 
   def __post_init__(self):
     if self.goal not in ("sample", "end"):
