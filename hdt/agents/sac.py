@@ -79,6 +79,10 @@ class SACConfig:
   # SB2's SAC (the authors'): a state-value net V with a target V', Q on r + gamma V'(s'), the actor
   # on Q_1; False: twin-min target Q (module docstring). --preset paper sets it.
   value_net: bool = False
+  # False: a time-limit end is stored as terminal, as the authors' SB2 SAC stores float(done)
+  # (algs/discrim_sac.py, algs/kl_sac.py); True: bootstrap through it (only falls and solved tasks
+  # are terminal).
+  bootstrap_time_limits: bool = False
 
   def __post_init__(self):
     # Normalise sequences to tuples so the config stays hashable (it is a static jit argument).

@@ -348,7 +348,7 @@ def make_train(
       agent = agent.replace(obs_norm=normalizer.update(agent.obs_norm, obs))
     transitions = Transition(
         obs=f32(obs), action=f32(action), reward=f32(nxt.reward), next_obs=f32(nxt.next_obs),
-        discount=f32(nxt.discount),
+        discount=f32(nxt.discount) if config.bootstrap_time_limits else 1.0 - f32(nxt.done),
         extras=None if extras_fn is None else jax.vmap(extras_fn)(ts.env_state, nxt),
     )
     env_steps = ts.env_steps + n_envs
