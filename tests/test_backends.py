@@ -4,6 +4,7 @@ the robots brought as one MJCF file (examples/robots, ROBOTS.md) included."""
 from pathlib import Path
 
 import jax
+import mujoco
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -29,6 +30,11 @@ LEGGED = {"ant": (0.05, 1.5), "ant3": (0.05, 1.5), "ant2": (0.05, 1.5), "quadrup
 
 
 def _rollouts(agent, task, backend, nenv=2, nstep=100, perturb=0.0):
+  return _rollouts_with_obs(agent, task, backend, nenv, nstep, perturb)[0]
+
+
+def _rollouts_with_obs(agent, task, backend, nenv=2, nstep=100, perturb=0.0):
+  """(qpos, sensordata) per step, env and state; and the env."""
   env = E.make(agent, task, backend=backend)
   acts = 0.5 * jax.random.uniform(jax.random.PRNGKey(1), (nstep, nenv, env.action_size), minval=-1, maxval=1)
   acts = acts + perturb * jax.random.normal(jax.random.PRNGKey(2), acts.shape)
@@ -38,15 +44,36 @@ def _rollouts(agent, task, backend, nenv=2, nstep=100, perturb=0.0):
 
     def f(s, a):
       s = jax.vmap(env.step)(s, a)
-      return s, s.physics.qpos
+      return s, (s.physics.qpos, s.physics.sensordata)
     return jax.lax.scan(f, s, acts)[1]
-  return np.asarray(jax.jit(run)(jax.random.split(jax.random.PRNGKey(0), nenv)))
+  qpos, sens = jax.jit(run)(jax.random.split(jax.random.PRNGKey(0), nenv))
+  return np.asarray(qpos), np.asarray(sens), env
+
+
+def _assert_positions_are_of_the_final_qpos(env, qpos, sens, atol=1e-6):
+  """Every position sensor (the goal-space point, a block, a peg tip) is forward kinematics of the
+  qpos the step returned, not of the state one substep before (mj_step computes sensors before it
+  integrates)."""
+  m = env.mj_model
+  d = mujoco.MjData(m)
+  idx = np.concatenate([np.arange(m.sensor_adr[i], m.sensor_adr[i] + 3) for i in range(m.nsensor)
+                        if m.sensor_type[i] == mujoco.mjtSensor.mjSENS_FRAMEPOS])
+  worst = 0.0
+  for q, sd in zip(qpos.reshape(-1, m.nq)[::7], sens.reshape(-1, m.nsensordata)[::7]):
+    d.qpos[:] = q
+    mujoco.mj_kinematics(m, d)
+    mujoco.mj_sensorPos(m, d)
+    worst = max(worst, float(np.abs(d.sensordata[idx] - sd[idx]).max()))
+  assert worst < atol, worst
 
 
 @pytest.mark.parametrize("agent,task", [
     pytest.param(a, t, id=f"{Path(a).stem}-{t}", marks=pytest.mark.slow if a in VARIANTS else ()) for a, t in SCENES])
 def test_backends_agree(agent, task):
-  nat, mjx = _rollouts(agent, task, "native"), _rollouts(agent, task, "mjx")
+  nat, nat_sens, nat_env = _rollouts_with_obs(agent, task, "native")
+  mjx, mjx_sens, mjx_env = _rollouts_with_obs(agent, task, "mjx")
+  _assert_positions_are_of_the_final_qpos(nat_env, nat, nat_sens)
+  _assert_positions_are_of_the_final_qpos(mjx_env, mjx, mjx_sens)
   assert np.isfinite(mjx).all() and np.isfinite(nat).all()
   d = np.abs(nat - mjx)
   if agent in LEGGED:

@@ -216,3 +216,23 @@ def test_tasks_declare_the_sensors_they_read():
   bad = type("BadPush", (Push,), {"sensors": {"block": "block/no_such_sensor"}})
   with pytest.raises(ValueError, match="no_such_sensor"):
     AgentTaskEnv(agent_spec("arm3"), bad())
+
+
+@pytest.mark.parametrize("agent,task", [(a, "reach") for a in E.AGENTS] + [("arm3", "push1")])
+def test_observed_point_is_forward_kinematics_of_the_final_qpos(agent, task):
+  """The observed goal-space point (and every position sensor) describes the state the step returned
+  (native backend; tests/test_backends.py checks MJX too)."""
+  import mujoco
+  env = E.make(agent, task, backend="native")
+  s = env.reset(jax.random.PRNGKey(0))
+  step = jax.jit(env.step)
+  acts = jax.random.uniform(jax.random.PRNGKey(1), (6, env.action_size), minval=-1, maxval=1)
+  m, d = env.mj_model, mujoco.MjData(env.mj_model)
+  site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "agent/goal_point")
+  for a in acts:
+    s = step(s, a)
+    d.qpos[:] = np.asarray(s.physics.qpos, np.float64)
+    mujoco.mj_kinematics(m, d)
+    tip = np.concatenate([np.asarray(env.quantities(s.physics)["tip"]), [float(env.quantities(s.physics)["z"])]])
+    np.testing.assert_allclose(tip, d.site_xpos[site], atol=1e-6, rtol=0)
+    np.testing.assert_allclose(s.obs_hi[:2], d.site_xpos[site][:2], atol=1e-6, rtol=0)
