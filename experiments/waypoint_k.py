@@ -1,5 +1,11 @@
 """Waypoint return of a scripted greedy HL (sub-goal = the waypoint, clipped to the sub-goal box)
-over the zoo's point-mass LL, for the authors' k = 15 and hdt's k = 32 (RESULTS.md, Waypoint)."""
+over a point-mass LL, for the authors' class defaults k = 15 (point mass) and 20 (ant, quadruped) and
+the paper's k = 32 (RESULTS.md, Waypoint).
+
+  python experiments/waypoint_k.py [--low zoo:point/low] [--k 15 20 32]
+"""
+
+import argparse
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +30,11 @@ def greedy_return(k: int, episodes: int = 32, low: str = "zoo:point/low") -> tup
 
 
 if __name__ == "__main__":
-  for k in (15, 32):
-    mean, std, hits = greedy_return(k)
+  ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+  ap.add_argument("--low", default="zoo:point/low", help="the LL run or zoo entry")
+  ap.add_argument("--k", type=int, nargs="+", default=[15, 20, 32])
+  ap.add_argument("--episodes", type=int, default=32)
+  args = ap.parse_args()
+  for k in args.k:
+    mean, std, hits = greedy_return(k, args.episodes, args.low)
     print(f"k={k}: greedy HL return {mean:.0f} ± {std:.0f}, HL steps with a waypoint {hits:.1f} of 50")

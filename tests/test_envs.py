@@ -236,3 +236,31 @@ def test_observed_point_is_forward_kinematics_of_the_final_qpos(agent, task):
     tip = np.concatenate([np.asarray(env.quantities(s.physics)["tip"]), [float(env.quantities(s.physics)["z"])]])
     np.testing.assert_allclose(tip, d.site_xpos[site], atol=1e-6, rtol=0)
     np.testing.assert_allclose(s.obs_hi[:2], d.site_xpos[site][:2], atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("agent", ["ant", "quadruped"])
+def test_legged_observation_is_the_authors_state(agent):
+  """ant.py Ant.state / quadruped.py Quadruped.state then agent_state_func: qpos[2:], qvel,
+  clip(cfrc_ext, -1, 1) of their model's bodies (world, robot, target, highlevel), g - xy; here
+  recomputed with plain MuJoCo from the state the step returned."""
+  import mujoco
+  env = E.make(agent, "reach", backend="native")
+  s = env.reset(jax.random.PRNGKey(0))
+  step = jax.jit(env.step)
+  a = 0.5 * jnp.ones(env.action_size)
+  for _ in range(15):  # standing on the floor: contact forces are not zero
+    s = step(s, a)
+  m, d = env.mj_model, mujoco.MjData(env.mj_model)
+  d.qpos[:], d.qvel[:] = np.asarray(s.physics.qpos, np.float64), np.asarray(s.physics.qvel, np.float64)
+  if m.na:
+    d.act[:] = np.asarray(s.physics.act, np.float64)
+  d.ctrl[:] = np.asarray(env.ctrl(a))
+  mujoco.mj_forward(m, d)
+  mujoco.mj_rnePostConstraint(m, d)
+  robot = [b for b in range(m.nbody) if m.body_rootid[b] == m.body("agent/root").id]
+  cfrc = np.concatenate([np.zeros(6), np.clip(d.cfrc_ext[robot], -1, 1).ravel(), np.zeros(12)])
+  goal = np.asarray(s.task["t"]["goal"])
+  want = np.concatenate([d.qpos[2:], d.qvel, cfrc, goal - d.qpos[:2]])
+  assert s.obs.shape == want.shape == ({"ant": 125, "quadruped": 165}[agent],)
+  assert np.abs(cfrc).sum() > 1.0  # feet on the floor
+  np.testing.assert_allclose(np.asarray(s.obs), want, atol=2e-3)
