@@ -1,4 +1,4 @@
-"""End-to-end training throughput against the machine's matmul peak (issue 17, item 2).
+"""End-to-end training throughput against the machine's matmul peak (BENCHMARKS.md, "Whole-run throughput").
 
     python benchmarks/e2e_throughput.py [--agents arm3 ant] [--chunks 3] [--out benchmarks/e2e_throughput.json]
 

@@ -1,5 +1,5 @@
 """The matmul ceiling of the paper's LL networks: GFLOP/s of each of the SAC update's matmul shapes
-run alone (issue 17, item 2: the bound on the end-to-end fraction).
+run alone: the bound on the end-to-end fraction (BENCHMARKS.md, "Whole-run throughput").
 
     python benchmarks/matmul_shapes.py [--seeds 1 2 3] [--out benchmarks/matmul_shapes.json]
 

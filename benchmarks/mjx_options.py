@@ -1,4 +1,4 @@
-"""MJX solver options vs env throughput, compile time and agreement with native MuJoCo (issue 2).
+"""MJX solver options vs env throughput, compile time and agreement with native MuJoCo (BENCHMARKS.md, "MJX").
 
   python benchmarks/mjx_options.py [--scenes ant/reach,arm3/push1] [--variants default,n10/10]
                                    [--batch 64] [--steps 100] [--reps 3] [--out benchmarks/mjx_options.json]

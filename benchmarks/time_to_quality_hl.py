@@ -4,7 +4,7 @@
         [--hdt-configs NAME,...] [--vmapped-seeds] [--skip-sbx] [--skip-hdt] [--sbx-max-minutes 3]
         [--hdt-max-minutes 1.5] [--out FILE] [--compile-cache DIR] [--recompute]
 
-The third task of issue 8's time-to-quality item, next to the LL reach tasks of
+The high-level tasks of the time-to-quality benchmark (BENCHMARKS.md, "Time to quality"), next to the LL reach tasks of
 ``benchmarks/time_to_quality.py``, whose helpers (training loops, first crossings, summaries, table,
 results.json update) it imports; the fairness rules are the same.
 
@@ -13,7 +13,7 @@ Two tasks (``--task``, ``TASKS`` below):
   ``hdt.train_low("point", ...)`` with the ``cpu`` preset's budget (20k env steps, 8 envs, one update
   per env step) into ``--low-run DIR`` and reused from there on later invocations (its training is in
   neither clock).
-- ``push1``: issue 17's paper quality, the arm_point HL solving BlockPush 1 in >= 90% of episodes, over
+- ``push1``: the paper's quality, the arm_point HL solving BlockPush 1 in >= 90% of episodes, over
   the fixed zoo LL ``zoo:arm_point/low``. The metric is the success rate of the evaluation episodes (an
   episode succeeds if the block reaches its goal at any HL step; the task ends the episode there). Its
   HL env is built the same way; everything below that says "Waypoint" holds for it with "success rate"
@@ -56,7 +56,7 @@ first seed, from the persistent cache for later ones, like hdt's chunk); the HL 
 is built before SBX's clock starts (it is also the evaluator's env). SBX: the paper's HL
 hyper-parameters ([64,64], lr 3e-4, batch 64, buffer 50k), one env, one gradient update per env
 step, ``learning_starts=100``. hdt: ``HDT_CONFIGS`` below (for push1, ``e8_u32_b64_norm``: UTD 4 with
-observation normalisation, chosen on seeds 0-2 and measured on held-out seeds 3-5, BENCHMARKS.md item 1).
+observation normalisation, chosen on seeds 0-2 and measured on held-out seeds 3-5, BENCHMARKS.md "Time to quality").
 Writes ``benchmarks/time_to_quality_hl.json`` and the results.json key
 ``sbx_speedup_pm_waypoint_hl`` (skipped with ``--quick`` or ``--no-results``).
 """
@@ -105,7 +105,7 @@ TASKS = {
                      extra_thresholds=(500.0,), eval_every=128, max_steps=12_288, sbx=SBX_HL,
                      results_key="sbx_speedup_pm_waypoint_hl", primary_only=False,
                      quick=dict(threshold=-1000.0, extra_thresholds=(), eval_every=128, max_steps=1024)),
-    # issue 17's quality: >= 90% of episodes solved; 0.5 marks learning well under way. The budget
+    # the paper's quality: >= 90% of episodes solved; 0.5 marks learning well under way. The budget
     # cap is the paper's HL budget. results.json gets a number only if hdt reached 0.9 in every seed.
     "push1": dict(name="pm_push1_hl", low="zoo:arm_point/low", metric="success", threshold=0.9,
                   extra_thresholds=(0.5,), eval_every=2000, max_steps=500_000, sbx=SBX_HL,
@@ -119,7 +119,7 @@ HDT_CONFIGS = {
     "e8_u16_b64": dict(num_envs=8, updates_per_step=16, batch_size=64),  # UTD 2
     "e8_u8_b64_norm": dict(num_envs=8, updates_per_step=8, batch_size=64, normalize_observations=True),
     "e8_u16_b64_norm": dict(num_envs=8, updates_per_step=16, batch_size=64, normalize_observations=True),
-    # UTD 4: chosen on seeds 0-2 (sessions 25 and 26); UTD 8 and batch 128 cost more than they saved.
+    # UTD 4: chosen on seeds 0-2 (BENCHMARKS.md, "Time to quality"); UTD 8 and batch 128 cost more than they saved.
     "e8_u32_b64_norm": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True),
     "e8_u64_b64_norm": dict(num_envs=8, updates_per_step=64, batch_size=64, normalize_observations=True),
     "e8_u32_b128_norm": dict(num_envs=8, updates_per_step=32, batch_size=128, normalize_observations=True),

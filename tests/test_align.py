@@ -320,7 +320,7 @@ def test_authors_offline_mode_starts_a_on_its_own_goal_then_follows_b(point_low,
 def test_expert_prev_obs_post_restart_begins_a_row_afresh_after_a_own_restart(point_low, tmp_path):
   """DiscriminatorEnv.step sets prev_expert_obs before ``expert_env.reset()``, so A's row after its own
   restart begins at its old episode's last observation (the default, checked in the offline test
-  above); ``expert_prev_obs="post_restart"`` (hdt before session 16) begins it at the fresh one."""
+  above); ``expert_prev_obs="post_restart"`` (an older hdt default) begins it at the fresh one."""
   assert D.DiscConfig().expert_prev_obs == "pre_restart"
   leaves = _alongside_state(point_low, tmp_path, "offline", expert_time_limit=10, expert_prev_obs="post_restart")
   assert _chain_breaks(leaves) == [10, 20, 30, 40, 50]
@@ -340,7 +340,7 @@ def _energy_distance(x, y):
 
 
 def test_alignment_moves_b_taus_towards_a(tmp_path):
-  """Issue 5: B = point mass with 3x actuator gear; its goal-space taus, aligned to A (the normal
+  """B = point mass with 3x actuator gear; its goal-space taus, aligned to A (the normal
   point mass, LL trained 3000 steps), are closer to A's than B's plain LL's taus, by energy distance
   on tau / delta_max. Same budget (4000 steps) for both B's; the alignment weight is a constant 0.5
   (DSAC's default discrim_weight). With the authors' reward (1-w) r + w clip(-2 log D) measured:

@@ -1,4 +1,4 @@
-"""Grids over the plug-ins' weights (issue 17): the KL weight of finetuning and the discriminator
+"""Grids over the plug-ins' weights: the KL weight of finetuning and the discriminator
 weight of alignment vary over grid points trained as one vmapped program, like SAC fields."""
 
 import json

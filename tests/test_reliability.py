@@ -1,4 +1,4 @@
-"""Reliability (issue 9): exact resume, atomic versioned checkpoints, determinism, NaN guards and
+"""Reliability: exact resume, atomic versioned checkpoints, determinism, NaN guards and
 argument validation that fails before anything is written.
 
 Training runs use the toy point-goal env of toy_env.py through ``runner.run_stage``, the function every

@@ -86,11 +86,11 @@ class DiscConfig:
   data: str = "offline"  # A's data: "offline" / "online" (A alongside B; see the module) or "fixed" (a set)
   expert_time_limit: int = 32  # A's episode length alongside B (README --discrim-time-limit); 0: A's LL horizon
   # where A restarts after its own episode ends: "high", the start of its HL episodes (DiscriminatorEnv.step's
-  # expert_env.reset(), low=False); "low", its LL start (hdt before session 11)
+  # expert_env.reset(), low=False); "low", its LL start (an older hdt default)
   expert_restart: str = "high"
   # A's input row after its own restart: "pre_restart", from its last observation before the restart, as
   # DiscriminatorEnv.step (prev_expert_obs is set before expert_env.reset(), so one row per A episode mixes
-  # the old goal with the new); "post_restart", from its fresh observation (hdt before session 16)
+  # the old goal with the new); "post_restart", from its fresh observation (an older hdt default)
   expert_prev_obs: str = "pre_restart"
   scale_inputs: bool = False  # True: divide inputs by A's delta_max (the authors feed raw units)
 

@@ -80,7 +80,7 @@ def mjx_model_copy(model: mujoco.MjModel, options: dict | None = None) -> mujoco
 
 
 def _import_mjx():
-  """``mujoco.mjx``, imported on first use: it is slow to import (BENCHMARKS.md, session 17), and the
+  """``mujoco.mjx``, imported on first use: it is slow to import (BENCHMARKS.md, "Start-up"), and the
   native backend does not need it. It prints "Failed to import warp ..." to stdout when the
   optional warp package is absent (hdt does not use it), so stdout is muted while it imports."""
   import contextlib
