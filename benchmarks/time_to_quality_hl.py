@@ -86,13 +86,13 @@ from hdt.transfer import pipeline  # noqa: E402
 
 import time_to_quality as ttq  # noqa: E402
 
-# The frozen LL: the cpu preset's point-mass LL (the one RESULTS.md's Waypoint row used).
+# The frozen LL: the cpu preset's point-mass LL (the one `hdt reproduce table1 --preset cpu` trains).
 LOW_CONFIG = dict(total_env_steps=configs.CPU_LOW_STEPS["point"], num_envs=8, updates_per_step=8,
                   steps_per_chunk=250, num_eval_episodes=16)
 # Thresholds on the mean evaluation return (higher is better), chosen from a pilot run (2026-11-22,
 # load ~3, seed 0, 32 eval episodes every 256 HL steps, over the 20k-step LL below): hdt e8_u8_b64
 # went -7184 (256 HL steps), -341, 305, 1072 (1,024), then stayed in 1,090-1,518 up to 8,192 (cf.
-# RESULTS.md's 1294 at 6,000); e16_u4_b128 crossed 500 at 2,816 and 1,000 at 3,328 and then stayed
+# the cpu preset's Table 1 HL: 1294 at 6,000); e16_u4_b128 crossed 500 at 2,816 and 1,000 at 3,328 and then stayed
 # in 1,098-1,375; SBX seeds 0 / 1 crossed 1,000 at 1,280 / 1,024. 1,000 (about 20 waypoints per
 # episode, ~80% of the plateau) is reached by every pilot run and held once reached; 1,200 or more
 # lies within the plateau's evaluation-to-evaluation swing, so a run can hover below it by chance.

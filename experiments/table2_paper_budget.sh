@@ -1,4 +1,4 @@
-# Table 2 (arm rows) at the paper-budget settings as grouped bars: RESULTS.md, "Table 2". Extra bars as arguments.
+# Table 2 (arm rows) at the paper-budget settings as grouped bars: RESULTS.md, "Appendix cells" (400k LL env steps). Extra bars as arguments.
 E=experiments/results/table2_evals
 PYTHONPATH=. python experiments/bars.py --out experiments/results/table2_paper_budget \
   --title "Table 2 (arm rows): PM HL / 2Link HL zero-shot over the 3Link LL, 400k env steps (discriminator lr 2e-4, w0 0.3 unless named)" \

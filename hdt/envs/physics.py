@@ -56,7 +56,7 @@ def resolve_backend(backend: Backend) -> str:
 # Under vmap MJX's solver loop runs until the slowest env converges and its line search always runs
 # all ls_iterations (a scan of conds, i.e. selects), so MuJoCo's defaults (100 / 50) cost several
 # times what these scenes need: Newton with 4 / 6 runs ant, arm3 and quadruped 3-4x faster and
-# still passes tests/test_backends.py (benchmarks/mjx_options.py; BENCHMARKS.md, "MJX options").
+# still passes tests/test_backends.py (benchmarks/mjx_options.py; BENCHMARKS.md, "MJX").
 MJX_OPTIONS: dict = dict(iterations=4, ls_iterations=6, solver=None, disable=())
 
 
