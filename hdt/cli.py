@@ -11,6 +11,7 @@
   hdt sweep finetune --high RUN --low RUN --task waypoint --grid kl_weight=0,1,10
   hdt reproduce table1 --preset cpu               paper tables/figures (experiments/)
   hdt report RUN                                  Markdown + PNGs of a run directory
+  hdt render --policy zoo:arm3/low --out arm3.mp4 video of a policy (or --high RUN --low RUN --task T)
   hdt quickstart                                  minutes-scale tour on a CPU
 
 Every sub-command takes --seeds N, --preset smoke|cpu|paper, --out DIR and --quiet.
@@ -278,6 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=fmt)
   rep.add_argument("run", type=Path, nargs="+", help="run directories")
   rep.add_argument("--no-trajectory", action="store_true", help="skip the trajectory plot")
+  rep.add_argument("--no-video", action="store_true", help="skip the clip of the policy (hdt render)")
   _common(rep, "unused (reports go to RUN/report/)")
 
   zo = sub.add_parser("zoo", help="list the model zoo (zoo:NAME works wherever a run directory does), "
@@ -296,6 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
                      formatter_class=fmt)
   _common(q, "root of the quickstart's runs (default: runs/quickstart)")
   q.add_argument("--overwrite", action="store_true", help="replace an existing quickstart in --out as a whole")
+  _render_parser(sub, fmt)
   return p
 
 
@@ -684,7 +687,7 @@ def cmd_zoo(args) -> int:
 def cmd_report(args) -> int:
   from hdt.report import run_report
   for run in args.run:
-    path = run_report(run, trajectory=not args.no_trajectory)
+    path = run_report(run, trajectory=not args.no_trajectory, video=not args.no_video)
     print(path.read_text())
     print(f"report: {path}")
   return 0
@@ -752,13 +755,64 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
                                                                 return_std=own["return_std"]),
                                                         transfer=table), indent=1))
   rep = run_report(high.run_dir)
+  from hdt.report import video_path
+  video = video_path(rep.parent)
+  if video is not None:
+    print(f"\nvideo of the PM hierarchy on Waypoint: {video}")
   print(f"\nplots and report: {rep.parent}\nrun directories: {low.run_dir} {high.run_dir}")
+  return 0
+
+
+def _render_parser(sub, fmt) -> None:
+  r = sub.add_parser("render", help="video (MP4, or GIF) of a policy's rollout: an LL, an HL over an LL, or a zoo entry",
+                     formatter_class=fmt)
+  r.add_argument("--policy", default=None, help="a flat policy run or zoo:NAME (an LL on reach, or Full)")
+  r.add_argument("--high", default=None, help="an HL run or zoo:NAME, driving --low")
+  r.add_argument("--low", default=None, help="the LL run or zoo:NAME under --high")
+  r.add_argument("--task", default=None, help="task (default: the policy's own)")
+  r.add_argument("--box", choices=("refuse", "scale", "keep"), default="refuse",
+                 help="what to do when the HL's and LL's goal boxes differ (as `hdt eval`)")
+  r.add_argument("--out", type=Path, required=True, help="the video file: .mp4, or .gif")
+  r.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+  r.add_argument("--episodes", type=int, default=1, help="rollouts, one after the other")
+  r.add_argument("--max-steps", type=int, default=300, help="LL steps (frames) per rollout at most")
+  r.add_argument("--fps", type=float, default=None, help="frames per second (default: real time)")
+  r.add_argument("--width", type=int, default=480, help="pixels (even)")
+  r.add_argument("--height", type=int, default=360, help="pixels (even)")
+  r.add_argument("--seed", type=int, default=0, help="random key of the first rollout")
+  r.add_argument("--seed-index", type=int, default=0, help="which trained seed of the policy acts")
+  r.add_argument("--shadows", action="store_true", help="render shadows (slow in software OpenGL)")
+  r.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
+  r.add_argument("--quiet", action="store_true", help="print only the file written")
+
+
+def cmd_render(args) -> int:
+  """A video of a policy (hdt.render): headless MuJoCo rendering of hdt's own rollouts."""
+  from hdt import render
+  if args.policy is None and (args.high is None or args.low is None):
+    raise CLIError("hdt render needs --policy RUN, or --high RUN and --low RUN (run directories or zoo:NAME)")
+  try:
+    render.check_out(args.out, args.overwrite)
+    cfg = render.RenderConfig(width=args.width, height=args.height, fps=args.fps, max_steps=args.max_steps,
+                              episodes=args.episodes, key=args.seed, seed_index=args.seed_index,
+                              shadows=args.shadows, backend=args.backend).check()
+  except ValueError as e:
+    raise CLIError(str(e)) from None
+  try:
+    if not args.quiet:
+      print(f"rendering with MUJOCO_GL={render.gl_backend()}", flush=True)
+    path = render.render(render.load(args.policy, args.high, args.low, box=args.box), args.out, args.task, cfg,
+                         overwrite=args.overwrite)
+  except render.RenderError as e:
+    print(f"hdt: error: {_one_line(e)}", file=sys.stderr, flush=True)
+    return 1
+  print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)")
   return 0
 
 
 COMMANDS = {"train": cmd_train, "align": cmd_align, "finetune": cmd_finetune, "eval": cmd_eval,
             "sweep": cmd_sweep, "reproduce": cmd_reproduce, "report": cmd_report, "quickstart": cmd_quickstart,
-            "zoo": cmd_zoo}
+            "zoo": cmd_zoo, "render": cmd_render}
 
 
 def _one_line(e: BaseException) -> str:

@@ -46,8 +46,9 @@ def read_eval_curves(run_dir: str | Path) -> dict[str, tuple[np.ndarray, np.ndar
   return out
 
 
-def run_report(run_dir: str | Path, trajectory: bool = True, episodes: int = 10) -> Path:
-  """Writes ``RUN/report/report.md`` with PNGs next to it and returns the Markdown path."""
+def run_report(run_dir: str | Path, trajectory: bool = True, episodes: int = 10, video: bool = True) -> Path:
+  """Writes ``RUN/report/report.md`` with PNGs next to it and returns the Markdown path. ``video``: a
+  short clip of the policy when rendering works here (hdt.render)."""
   from hdt import plots
 
   run_dir = Path(run_dir)
@@ -76,6 +77,9 @@ def run_report(run_dir: str | Path, trajectory: bool = True, episodes: int = 10)
   lines[4:4] = [markdown_table(["metric", "final (mean ± std over seeds)", "per seed", "at start"], rows), ""]
   if trajectory and meta.get("level") == "high" and meta.get("low"):
     lines += ["", _trajectory_section(run_dir, meta, out)]
+  if video:
+    out.mkdir(parents=True, exist_ok=True)
+    lines += ["", _video_section(run_dir, meta, out)]
   path = out / "report.md"
   text = "\n".join(lines) + "\n"
   out.mkdir(parents=True, exist_ok=True)
@@ -104,3 +108,34 @@ def _trajectory_section(run_dir: Path, meta: dict, out: Path) -> str:
                          title=f"{meta['task']}: HL seed 0 driving {lm['agent']}'s LL")
   ret = float(np.sum(traj["rewards"]))
   return f"One deterministic episode (return {ret:.3g}):\n\n![trajectory]({png.name})"
+
+
+VIDEOS = ("clip.mp4", "clip.gif")  # a report's clip: MP4, or GIF where no MP4 encoder works
+VIDEO_STEPS = 100  # LL steps in the clip: a few seconds of motion, rendered in seconds
+
+
+def video_path(report_dir: Path) -> Path | None:
+  """The clip of a report directory, if it has one."""
+  return next((report_dir / n for n in VIDEOS if (report_dir / n).exists()), None)
+
+
+def _video_section(run_dir: Path, meta: dict, out: Path) -> str:
+  """A short clip of the run's policy (seed 0), or one line saying why there is none: a failure to
+  render never fails the report."""
+  import sys
+
+  from hdt import render
+  from hdt.transfer.evaluate import compose, load_policy
+  for name in VIDEOS:  # never a clip of an earlier report beside this one
+    (out / name).unlink(missing_ok=True)
+  try:
+    high = meta.get("level") == "high" and isinstance(meta.get("low"), dict)
+    policy = compose(run_dir, meta["low"]["path"]) if high else load_policy(run_dir)
+    path = render.render(policy, out / VIDEOS[0], config=render.RenderConfig(width=320, height=240,
+                                                                              max_steps=VIDEO_STEPS))
+  except Exception as e:  # noqa: BLE001 (whatever stops the video, the report goes on without it)
+    why = " ".join(str(e).split()) or type(e).__name__
+    print(f"report: no video ({why})", file=sys.stderr)
+    return f"(no video: {why})"
+  what = f"Seed 0 acting deterministically ({VIDEO_STEPS} LL steps at most; the sub-goal in yellow)"
+  return f"{what}:\n\n![rollout]({path.name})" if path.suffix == ".gif" else f"{what}: [video]({path.name})"

@@ -212,7 +212,8 @@ def zero_shot_matrix(highs: dict[str, str | Path], lows: dict[str, str | Path], 
 def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key: int = 0,
                backend: str = "auto", **task_overrides) -> dict:
   """One episode of an HL policy, recorded per LL step: goal-space xy (torso / effector / peg),
-  block xy, and each sub-goal, for top-down plots."""
+  block xy, and each sub-goal, for top-down plots; for videos (hdt.render) also every LL step's qpos
+  and sub-goal (``qpos``, ``step_goals``) and the scene's MjModel (``model``)."""
   if policy.low_meta is None:
     raise ValueError("trajectory() needs a composed HL + LL policy (see compose)")
   at = lambda tree: jax.tree.map(lambda x: x[seed_index], tree)
@@ -226,12 +227,13 @@ def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key
     def f(s, _):
       n = env.step(s, apply(params, s.obs))
       return n, (n.metrics["xy"], n.metrics["block"], n.metrics["active"], n.metrics["goal"], n.done,
-                 n.reward)
+                 n.reward, n.metrics["qpos"])
     return jax.lax.scan(f, s, None, length=env.horizon)[1]
 
-  xy, block, active, goals, done, reward = jax.device_get(jax.jit(run)(params, jax.random.PRNGKey(key)))
+  xy, block, active, goals, done, reward, qpos = jax.device_get(jax.jit(run)(params, jax.random.PRNGKey(key)))
   end = int(np.argmax(done > 0)) + 1 if np.any(done > 0) else len(done)
   keep = active[:end].reshape(-1) > 0
-  return dict(xy=xy[:end].reshape(-1, 2)[keep], block=block[:end].reshape(-1, 2)[keep],
-              goals=goals[:end], rewards=reward[:end], task=task or policy.meta["task"],
-              agent=policy.agent)
+  per_ll = lambda x: x[:end].reshape((-1,) + x.shape[2:])[keep]  # (HL step, LL step, ...) -> LL steps taken
+  return dict(xy=per_ll(xy), block=per_ll(block), goals=goals[:end], rewards=reward[:end],
+              task=task or policy.meta["task"], agent=policy.agent, qpos=per_ll(qpos),
+              step_goals=np.repeat(goals[:end], active.shape[1], axis=0)[keep], model=env.env.mj_model)

@@ -96,7 +96,8 @@ class HighLevelEnv:
     m |= {"ll_steps": jnp.float32(0.0), "sub_goal_dist": jnp.float32(0.0)}
     if self.record:
       m |= {"xy": jnp.zeros((self.k, 2)), "block": jnp.zeros((self.k, 2)),
-            "active": jnp.zeros((self.k,)), "goal": jnp.zeros(2)}
+            "active": jnp.zeros((self.k,)), "goal": jnp.zeros(2),
+            "qpos": jnp.zeros((self.k,) + state.physics.physics.qpos.shape)}
     return None, m
 
   def step(self, state: State, action: jax.Array) -> State:
@@ -113,6 +114,7 @@ class HighLevelEnv:
       if self.record:
         out["xy"] = skill(nxt.obs_hi)
         out["block"] = nxt.obs_hi[2:4] if nxt.obs_hi.shape[-1] >= 4 else jnp.zeros(2)
+        out["qpos"] = nxt.physics.qpos  # every LL step's pose, for videos (hdt.render)
       still = nxt.done == 0  # the inner env's done flags a fall only
       if self.early_stop:
         still = still & ~(jnp.linalg.norm(skill(nxt.obs_hi) - goal) < self.eps)
@@ -145,11 +147,11 @@ class HighLevelEnv:
     inner = jax.tree.map(lambda n, o: jnp.where(done, n, o), self.env.reset(k_reset), inner)
     active = per["active"]
     metrics = {k: _reduce(task.reduction(k), v, active, last)
-               for k, v in per.items() if k not in ("active", "xy", "block", "reward")}
+               for k, v in per.items() if k not in ("active", "xy", "block", "qpos", "reward")}
     metrics["ll_steps"] = active.sum()
     metrics["sub_goal_dist"] = jnp.linalg.norm(skill(next_hi) - goal)
     if self.record:
-      metrics |= {"xy": per["xy"], "block": per["block"], "active": active, "goal": goal}
+      metrics |= {"xy": per["xy"], "block": per["block"], "active": active, "goal": goal, "qpos": per["qpos"]}
     return self._wrap(inner, low, next_obs=next_hi, reward=reward, done=done.astype(jnp.float32),
                       discount=1.0 - terminal.astype(jnp.float32), steps=jnp.where(done, 0, steps),
                       metrics=metrics, key=key)
