@@ -7,7 +7,6 @@ import functools
 import hashlib
 import os
 import pickle
-import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -16,6 +15,8 @@ import jaxlib
 import mujoco
 from jax.experimental import serialize_executable
 from jax.experimental.compilation_cache import compilation_cache as cc
+
+from hdt import atomic
 
 
 def cache_dir() -> Path:
@@ -73,11 +74,9 @@ def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
     return lowered.compile()
   program = _compile_fresh(lowered)
   path.parent.mkdir(parents=True, exist_ok=True)
-  fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-  with os.fdopen(fd, "wb") as f:
+  with atomic.open_atomic(path, "wb") as f:  # a concurrent run never reads half a file
     devices = {d.id for sh in jax.tree.leaves(program.input_shardings) for d in sh.device_set}
     pickle.dump((serialize_executable.serialize(program), sorted(devices)), f)
-  os.replace(tmp, path)  # atomic: a concurrent run never reads half a file
   return program
 
 

@@ -13,14 +13,17 @@ import matplotlib.pyplot as plt  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
+from hdt import atomic  # noqa: E402
+
 
 def _save(fig, path) -> Path:
   path = Path(path)
   path.parent.mkdir(parents=True, exist_ok=True)
-  tmp = path.with_name("." + path.name + ".tmp.png")
-  fig.savefig(tmp, dpi=120, bbox_inches="tight")
-  plt.close(fig)
-  tmp.replace(path)  # never a half-written PNG
+  try:
+    with atomic.open_atomic(path, "wb") as f:  # never a half-written PNG
+      fig.savefig(f, format="png", dpi=120, bbox_inches="tight")
+  finally:
+    plt.close(fig)
   return path
 
 
