@@ -2,11 +2,31 @@
 
 __version__ = "0.1.0"
 
-from hdt import envs
-from hdt.agents.sharding import use_cpu_cores
-from hdt.transfer.evaluate import compose, evaluate, random_actions, trajectory, zero_shot_matrix
-from hdt.transfer.finetune import finetune_high
-from hdt.transfer.pipeline import train_full, train_high, train_low
+import importlib
 
-__all__ = ["envs", "use_cpu_cores", "train_low", "train_high", "train_full", "finetune_high", "compose", "evaluate", "random_actions", "zero_shot_matrix",
-           "trajectory"]
+# Imported on first use: ``import hdt`` (and the ``hdt`` command, which handles Ctrl-C before JAX is
+# imported) costs nothing until a name below is used.
+_EXPORTS = {
+    "envs": "hdt.envs",
+    "use_cpu_cores": "hdt.agents.sharding",
+    "train_low": "hdt.transfer.pipeline", "train_high": "hdt.transfer.pipeline", "train_full": "hdt.transfer.pipeline",
+    "finetune_high": "hdt.transfer.finetune",
+    "compose": "hdt.transfer.evaluate", "evaluate": "hdt.transfer.evaluate",
+    "random_actions": "hdt.transfer.evaluate", "zero_shot_matrix": "hdt.transfer.evaluate",
+    "trajectory": "hdt.transfer.evaluate",
+}
+
+__all__ = list(_EXPORTS)
+
+
+def __getattr__(name):
+  if name not in _EXPORTS:
+    raise AttributeError(f"module 'hdt' has no attribute {name!r}")
+  module = importlib.import_module(_EXPORTS[name])
+  value = module if name == "envs" else getattr(module, name)
+  globals()[name] = value
+  return value
+
+
+def __dir__():
+  return sorted(list(globals()) + __all__)
