@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from typing import Any, Callable
 
 import jax
@@ -85,12 +86,18 @@ class SACConfig:
   bootstrap_time_limits: bool = False
 
   def __post_init__(self):
-    # Normalise sequences to tuples so the config stays hashable (it is a static jit argument).
-    object.__setattr__(self, "hidden_sizes", tuple(int(h) for h in self.hidden_sizes))
-    if self.critic_hidden_sizes is not None:
-      object.__setattr__(
-          self, "critic_hidden_sizes", tuple(int(h) for h in self.critic_hidden_sizes)
-      )
+    # Plain Python numbers (numpy ones, e.g. an np.int64 budget, are accepted) and tuples, so the
+    # config stays hashable (it is a static jit argument); anything else is left for validate().
+    for f in dataclasses.fields(self):
+      v = getattr(self, f.name)
+      if _is_int(v):
+        object.__setattr__(self, f.name, int(v))
+      elif _is_number(v) and not isinstance(v, float):
+        object.__setattr__(self, f.name, float(v))
+    for name in ("hidden_sizes", "critic_hidden_sizes"):
+      v = getattr(self, name)
+      if isinstance(v, (list, tuple)) or hasattr(v, "__array__"):
+        object.__setattr__(self, name, tuple(int(h) if _is_int(h) else h for h in v))
     self.validate()
 
   # -- derived quantities ------------------------------------------------------------------------
@@ -124,21 +131,30 @@ class SACConfig:
       if not cond:
         errors.append(msg)
 
-    for name in ("hidden_sizes", "critic_sizes"):
+    for name in ("hidden_sizes", "critic_hidden_sizes")[:1 if self.critic_hidden_sizes is None else 2]:
       sizes = getattr(self, name)
       need(
-          len(sizes) > 0 and all(h > 0 for h in sizes),
-          f"{name}={sizes}: give at least one hidden layer, all sizes positive, e.g. (64, 64)",
+          isinstance(sizes, tuple) and len(sizes) > 0 and all(_is_int(h) and h > 0 for h in sizes),
+          f"{name}={sizes!r}: give at least one hidden layer, all sizes positive integers, e.g. (64, 64)",
       )
-    for name in ("actor_lr", "critic_lr", "alpha_lr"):
+    for name in ("actor_lr", "critic_lr", "alpha_lr", "tau", "gamma", "reward_scale", "init_alpha"):
       v = getattr(self, name)
-      need(math.isfinite(v) and v > 0, f"{name}={v}: learning rates must be positive, e.g. 3e-4")
+      need(_is_number(v), f"{name}={v!r}: must be a number, e.g. {getattr(SACConfig, name)!r}")
+    need(self.target_entropy is None or _is_number(self.target_entropy),
+         f"target_entropy={self.target_entropy!r}: must be a number or None (-action_size)")
     for name in ("batch_size", "buffer_size", "updates_per_step", "num_envs", "steps_per_chunk",
                  "num_eval_episodes", "total_env_steps"):
       v = getattr(self, name)
-      need(isinstance(v, int) and v > 0, f"{name}={v!r}: must be a positive integer")
-    if errors:  # the checks below assume positive integers
+      need(_is_int(v) and v > 0, f"{name}={v!r}: must be a positive integer")
+      need(not _is_int(v) or v < MAX_COUNT,
+           f"{name}={v}: must be below 2**31 = {MAX_COUNT} (hdt counts in int32)")
+    need(_is_int(self.learning_starts) and self.learning_starts >= 0,
+         f"learning_starts={self.learning_starts!r}: must be an integer >= 0")
+    if errors:  # the checks below assume numbers of the right kinds
       raise ValueError("invalid SACConfig:\n  " + "\n  ".join(errors))
+    for name in ("actor_lr", "critic_lr", "alpha_lr"):
+      v = getattr(self, name)
+      need(math.isfinite(v) and v > 0, f"{name}={v}: learning rates must be positive, e.g. 3e-4")
     need(
         self.batch_size <= self.buffer_size,
         f"batch_size={self.batch_size} > buffer_size={self.buffer_size}: lower batch_size or "
@@ -151,18 +167,13 @@ class SACConfig:
     )
     need(0.0 < self.tau <= 1.0, f"tau={self.tau}: must be in (0, 1], e.g. 0.005")
     need(0.0 <= self.gamma <= 1.0, f"gamma={self.gamma}: must be in [0, 1], e.g. 0.99")
-    need(
-        isinstance(self.learning_starts, int) and self.learning_starts >= 0,
-        f"learning_starts={self.learning_starts!r}: must be an integer >= 0",
-    )
     need(self.total_env_steps % self.env_steps_per_chunk == 0, self._budget_error())
-    if isinstance(self.learning_starts, int):
-      need(
-          self.learning_starts < self.total_env_steps,
-          f"learning_starts={self.learning_starts} >= total_env_steps={self.total_env_steps}: the "
-          "agent would never learn; lower learning_starts",
-      )
-    for name in ("normalize_observations", "value_net"):
+    need(
+        self.learning_starts < self.total_env_steps,
+        f"learning_starts={self.learning_starts} >= total_env_steps={self.total_env_steps}: the "
+        "agent would never learn; lower learning_starts",
+    )
+    for name in ("normalize_observations", "value_net", "bootstrap_time_limits"):
       v = getattr(self, name)
       need(isinstance(v, bool), f"{name}={v!r}: must be True or False")
     need(math.isfinite(self.reward_scale), f"reward_scale={self.reward_scale}: must be finite")
@@ -189,6 +200,17 @@ class SACConfig:
              else f"a budget that is a multiple of num_envs={self.num_envs}")
     return (f"total_env_steps={self.total_env_steps} is not a multiple of num_envs*steps_per_chunk="
             f"{unit}: set total_env_steps to {near} (--total-env-steps), or use {other}")
+
+
+MAX_COUNT = 2**31  # step counters and buffer indices are int32
+
+
+def _is_int(v) -> bool:
+  return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+  return isinstance(v, numbers.Real) and not isinstance(v, bool)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -55,10 +55,11 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
                 **env_overrides) -> Stage:
   """The stage of :func:`align_low`: B's reach env and LL config, the discriminator plug-in against
   A's data, and a card that records A."""
+  configs.check_config(config, allow_none=True)
   params_a, meta_a, fn_a = load_low(imitate, imitate_seed, ckpt.check_which(imitate_params, "imitate_params"))
   disc = configs.disc_config(meta_a["agent"]) if disc is None else disc
   env = make(agent, "reach", backend=backend, **env_overrides)
-  config = config or configs.low_config(agent)
+  config = configs.low_config(agent) if config is None else config
   card = PolicyCard.from_env(env, "low", config, env_overrides=env_overrides)
   card_a = PolicyCard.from_json(meta_a, imitate)
   card_a.compatible_with(card, "align")

@@ -10,6 +10,7 @@ does not split into whole chunks is refused with the nearest valid values.
 from __future__ import annotations
 
 import dataclasses
+import numbers
 
 from hdt.agents.sac import SACConfig
 from hdt.envs.robot import agent_spec
@@ -50,24 +51,28 @@ def _lrs(d):
   return dict(d, critic_lr=lr, alpha_lr=lr) if lr else d
 
 
-def _fit(cfg: dict) -> SACConfig:
+def _fit(cfg: dict, given=()) -> SACConfig:
   """The chunk defaults to at most 1000 training steps (fewer for a tiny budget) and learning starts
-  within the first half; the budget itself is never changed (SACConfig refuses one that does not
-  split into whole chunks, naming the nearest valid values)."""
-  cfg["steps_per_chunk"] = min(cfg.get("steps_per_chunk", _CHUNK),
-                               max(1, cfg["total_env_steps"] // cfg.get("num_envs", 1)))
-  cfg["learning_starts"] = min(cfg.get("learning_starts", 100), cfg["total_env_steps"] // 2)
+  within the first half unless ``given`` (the caller's own fields) sets it; the budget itself is never
+  changed (SACConfig refuses one that does not split into whole chunks, naming the nearest valid
+  values, and a learning_starts at or past it)."""
+  total, n = cfg.get("total_env_steps"), cfg.get("num_envs", 1)
+  counts = all(isinstance(v, numbers.Integral) and not isinstance(v, bool) and v > 0 for v in (total, n))
+  if counts:  # else SACConfig names what is wrong
+    cfg["steps_per_chunk"] = min(cfg.get("steps_per_chunk", _CHUNK), max(1, total // n))
+    if "learning_starts" not in given and isinstance(cfg.get("learning_starts", 100), numbers.Integral):
+      cfg["learning_starts"] = min(cfg.get("learning_starts", 100), total // 2)
   return SACConfig(**cfg)
 
 
 def low_config(agent: str, **overrides) -> SACConfig:
   base = dict(_LOW[family_key(agent)], total_env_steps=agent_spec(agent).ll_budget)
-  return _fit(_lrs(base) | overrides)
+  return _fit(_lrs(base) | overrides, overrides)
 
 
 def high_config(task: str, **overrides) -> SACConfig:
   """HL SAC config; ``total_env_steps`` counts HL decisions."""
-  return _fit(_lrs(dict(_HIGH, total_env_steps=hl_budget(task))) | overrides)
+  return _fit(_lrs(dict(_HIGH, total_env_steps=hl_budget(task))) | overrides, overrides)
 
 
 def finetune_config(task: str, **overrides) -> SACConfig:
@@ -84,7 +89,16 @@ def full_config(agent: str, task: str, **overrides) -> SACConfig:
 
 
 def replace(cfg: SACConfig, **kw) -> SACConfig:
-  return _fit(dataclasses.asdict(cfg) | kw)
+  return _fit(dataclasses.asdict(check_config(cfg)) | kw, kw)
+
+
+def check_config(config, what: str = "config", allow_none: bool = False) -> SACConfig | None:
+  """``config`` if it is a SACConfig (or None with ``allow_none``: the stage's default), else a
+  one-line error naming the argument."""
+  if not (isinstance(config, SACConfig) or (allow_none and config is None)):
+    raise ValueError(f"{what}={config!r}: pass a hdt.agents.sac.SACConfig (e.g. "
+                     f"hdt.transfer.configs.low_config('point', total_env_steps=20000)), or None for the default")
+  return config
 
 
 def chunk_for(total_env_steps: int, num_envs: int, evals: int) -> int:

@@ -164,6 +164,14 @@ def check_kl(kl: float, name: str = "kl") -> None:
     raise ValueError(f"{name}={kl}: the KL weight must be a finite number >= 0 (0 = plain finetuning)")
 
 
+def check_anneal_frac(anneal_frac) -> None:
+  """Refuses (one line) an ``anneal_frac`` that is not a fraction of training, in [0, 1]."""
+  if isinstance(anneal_frac, (bool, np.bool_)) or not isinstance(anneal_frac, (int, float, np.number)) \
+      or not 0 <= anneal_frac <= 1:
+    raise ValueError(f"anneal_frac={anneal_frac!r}: must be in [0, 1], the fraction of training over which "
+                     f"beta decays to 0 (e.g. 0.5)")
+
+
 def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
                    config: SACConfig | None = None, seeds=1, anneal_frac: float = 0.5,
                    mode: str = "forward", mean_only: bool = False, backend="auto", lr: float | None = None,
@@ -172,14 +180,13 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
                    reference_params: str = REFERENCE_PARAMS, **task_overrides) -> Stage:
   """The stage of :func:`finetune_high`: B's HL env, the start-from-A and KL plug-ins (``seeds``: the
   seeds they start, as they will be trained), and a card that records A."""
+  configs.check_config(config, allow_none=True)
   if init not in INITS:
     raise ValueError(f"init={init!r}: use 'sac' (A's whole SAC) or 'policy' (A's policy only)")
   if mode not in MODES:
     raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi_B || pi_A)) or 'reverse' (KL(pi_A || pi_B))")
   check_kl(kl)
-  if not (anneal_frac >= 0 and np.isfinite(anneal_frac)):
-    raise ValueError(f"anneal_frac={anneal_frac}: must be >= 0 (fraction of training over which "
-                     f"beta decays to 0)")
+  check_anneal_frac(anneal_frac)
   ckpt.check_which(reference_params, "reference_params")
   a_params, a_metas = load_high_sac(high, INIT_PARAMS)
   am = a_metas[0]

@@ -78,9 +78,10 @@ def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, ba
 
 def low_stage(agent: str, config: SACConfig | None = None, backend="auto", **env_overrides) -> Stage:
   """The stage of :func:`train_low` (without ``imitate``)."""
+  configs.check_config(config, allow_none=True)
   check_env_overrides(env_overrides, agent, "reach")
   env = make(agent, "reach", backend=backend, **env_overrides)
-  config = config or configs.low_config(agent)
+  config = configs.low_config(agent) if config is None else config
   return Stage(env, config, env_meta(env, "low", config, env_overrides=env_overrides), f"low {agent}")
 
 
@@ -139,9 +140,10 @@ def train_high(task: str, low: str | Path, config: SACConfig | None = None, seed
 def high_stage(task: str, low: str | Path, config: SACConfig | None = None, backend="auto", low_seed: int = 0,
                k: int | None = None, low_params: str = LOW_PARAMS, **task_overrides) -> Stage:
   """The stage of :func:`train_high`."""
+  configs.check_config(config, allow_none=True)
   check_env_overrides(task_overrides, task=task)
   env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params, k=k, **task_overrides)
-  config = config or configs.high_config(task)
+  config = configs.high_config(task) if config is None else config
   meta = env_meta(env, "high", config, low=low_rec, task_overrides=task_overrides)
   return Stage(env, config, meta, f"high {task}", save_extra=sac_extras)
 
@@ -164,9 +166,10 @@ def train_full(agent: str, task: str, config: SACConfig | None = None, seeds=1, 
 
 def full_stage(agent: str, task: str, config: SACConfig | None = None, backend="auto", **env_overrides) -> Stage:
   """The stage of :func:`train_full`."""
+  configs.check_config(config, allow_none=True)
   check_env_overrides(env_overrides, agent, task)
   env = make(agent, task, backend=backend, **env_overrides)
-  config = config or configs.full_config(agent, task)
+  config = configs.full_config(agent, task) if config is None else config
   return Stage(env, config, env_meta(env, "full", config, env_overrides=env_overrides), f"full {agent}/{task}")
 
 
