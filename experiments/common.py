@@ -26,7 +26,6 @@ import json
 import os
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -37,6 +36,7 @@ import numpy as np
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", os.path.expanduser("~/.cache/hdt/jax"))
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "1")
 
+from hdt import atomic
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import rundir
 from hdt.transfer import configs
@@ -168,12 +168,7 @@ def write_curve_csvs(directory: Path, method: str, c: dict[str, np.ndarray]) -> 
 
 # -- results --------------------------------------------------------------------------------------
 def write_text_atomic(path: Path, text: str) -> None:
-  path = Path(path)
-  path.parent.mkdir(parents=True, exist_ok=True)
-  fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-  with os.fdopen(fd, "w") as f:
-    f.write(text)
-  os.replace(tmp, path)
+  atomic.write_text(atomic.make_dirs(Path(path).parent) / Path(path).name, text)
 
 
 def write_csv_atomic(path: Path, fieldnames, rows) -> None:
@@ -231,6 +226,13 @@ def timed(minutes: dict, key: str, fn: Callable[[], Any]) -> Any:
   return out
 
 
+def claim_out(out: Path, name: str):
+  """Claims ``out`` for experiment ``name`` (hdt.transfer.rundir: new, empty, or this experiment's
+  own directory, also one written before the marker existed), held while it runs."""
+  legacy = lambda path: rundir.holds_only_runs(path, lambda entry: entry.startswith(f"{name}_"))
+  return rundir.claim(out, "experiment", reuse=True, legacy=legacy)
+
+
 def make_main(name: str, presets: dict, run: Callable, markdown: Callable, doc: str | None = None,
               extra: Callable[[argparse.ArgumentParser], None] | None = None) -> Callable:
   """The ``main(argv=None) -> int`` of an experiment module: parse, run, print the Markdown table.
@@ -246,9 +248,10 @@ def make_main(name: str, presets: dict, run: Callable, markdown: Callable, doc: 
     if extra:
       extra(p)
     a = vars(p.parse_args(argv))
-    text = markdown(run(**a))
-    print(text)
-    print("written: " + " ".join(map(str, publish(name, a["preset"], a["out"], text))))
+    with claim_out(a["out"], name):
+      text = markdown(run(**a))
+      print(text)
+      print("written: " + " ".join(map(str, publish(name, a["preset"], a["out"], text))))
     return 0
 
   return main

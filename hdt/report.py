@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hdt import atomic
 from hdt.transfer import checkpoint as ckpt
 
 # Evaluation metrics worth a curve, in the order they are shown; (csv column, label).
@@ -25,21 +26,50 @@ def markdown_table(header: list[str], rows: list[list]) -> str:
   return "\n".join(lines)
 
 
+def _damaged(path: Path, what: str) -> ValueError:
+  return ValueError(f"{path} is damaged ({what}): re-run training to write it again, or restore it from a backup")
+
+
+def read_metrics(path: Path) -> list[dict]:
+  """The rows of a run's metrics.csv, each checked: a seed, a kind ("train" or "eval") and numbers."""
+  try:
+    with open(path, newline="") as f:
+      reader = csv.DictReader(f)
+      header, rows = reader.fieldnames or [], list(reader)
+  except (UnicodeDecodeError, csv.Error) as e:
+    raise _damaged(path, f"not CSV text: {e}") from None
+  if not {"seed", "kind"} <= set(header):
+    raise _damaged(path, f"its header {', '.join(header[:4]) or 'is empty'} has no seed and kind columns")
+  for line, r in enumerate(rows, start=2):
+    if None in r or None in r.values():
+      raise _damaged(path, f"line {line} has {'more' if None in r else 'fewer'} fields than the header")
+    if r["kind"] not in ("train", "eval"):
+      raise _damaged(path, f"line {line} has kind {r['kind']!r}, not train or eval")
+    for k, v in r.items():
+      if k != "kind" and v != "":
+        try:
+          float(v)
+        except ValueError:
+          raise _damaged(path, f"line {line} has {k}={v!r}, not a number") from None
+  return rows
+
+
 def read_eval_curves(run_dir: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
   """``{column: (env_steps[T], values[S, T])}`` of the evaluation rows of a run's metrics.csv."""
   path = Path(run_dir) / "metrics.csv"
   if not path.exists():
     raise FileNotFoundError(f"{path} not found: is {run_dir} a run directory written by hdt?")
-  with open(path) as f:
-    rows = [r for r in csv.DictReader(f) if r["kind"] == "eval"]
+  rows = [r for r in read_metrics(path) if r["kind"] == "eval"]
   if not rows:
-    raise ValueError(f"{path} holds no evaluation rows")
-  seeds = sorted({r["seed"] for r in rows}, key=int)
+    raise ValueError(f"{path} holds no evaluation rows: re-run training to write it again")
+  if "env_steps" not in rows[0]:
+    raise _damaged(path, "no env_steps column")
+  seeds = sorted({r["seed"] for r in rows}, key=float)
   out = {}
   for col in rows[0]:
     if not col.startswith("eval/") or col == "eval/env_steps":
       continue
-    per = [[float(r[col]) for r in rows if r["seed"] == s] for s in seeds]
+    per = [[float(r[col]) if r[col] != "" else np.nan for r in rows if r["seed"] == s] for s in seeds]
     steps = np.array([float(r["env_steps"]) for r in rows if r["seed"] == seeds[0]])
     t = min(len(p) for p in per)
     out[col] = (steps[:t], np.array([p[:t] for p in per]))
@@ -47,21 +77,33 @@ def read_eval_curves(run_dir: str | Path) -> dict[str, tuple[np.ndarray, np.ndar
 
 
 def run_report(run_dir: str | Path, trajectory: bool = True, episodes: int = 10, video: bool = True) -> Path:
-  """Writes ``RUN/report/report.md`` with PNGs next to it and returns the Markdown path. ``video``: a
-  short clip of the policy when rendering works here (hdt.render)."""
-  from hdt import plots
-
+  """Writes ``RUN/report/report.md`` with PNGs next to it and returns the Markdown path (only into a
+  run hdt wrote, checked as every write is: hdt.transfer.rundir). ``video``: a short clip of the policy
+  when rendering works here (hdt.render)."""
+  from hdt.transfer import rundir
   run_dir = Path(run_dir)
   meta_path = run_dir / "meta.json"
   if not meta_path.exists():
     raise FileNotFoundError(f"{meta_path} not found: `hdt report` takes a run directory written by "
                             f"`hdt train/align/finetune` (it holds config.json, meta.json, metrics.csv)")
-  meta = json.loads(meta_path.read_text())
+  rundir.check_claimable(run_dir, "run", reuse=True, what="run")  # writes report/ into hdt's own runs only
+  try:
+    meta = json.loads(meta_path.read_text())
+  except (OSError, ValueError) as e:
+    raise _damaged(meta_path, f"not JSON: {e}") from None
+  if not isinstance(meta, dict) or not isinstance(meta.get("sac", {}), dict):
+    raise _damaged(meta_path, "not a JSON object" if not isinstance(meta, dict) else "its sac is not an object")
   out = run_dir / "report"
   curves = read_eval_curves(run_dir)
+  with rundir.claim(run_dir, "run", reuse=True):
+    return _write_report(run_dir, meta, curves, out, trajectory, video)
+
+
+def _write_report(run_dir: Path, meta: dict, curves: dict, out: Path, trajectory: bool, video: bool = True) -> Path:
+  from hdt import plots
   what = f"{meta.get('level')} level, {meta.get('agent')} on {meta.get('task')}"
   lines = [f"# Report: {run_dir.name}", "", f"{what}; seeds {meta.get('seeds')}; "
-           f"{int(meta.get('sac', {}).get('total_env_steps', 0))} env steps per seed.", ""]
+           f"{meta.get('sac', {}).get('total_env_steps', '?')} env steps per seed.", ""]
   rows = []
   for col, label in CURVE_METRICS:
     if col not in curves:
@@ -77,16 +119,10 @@ def run_report(run_dir: str | Path, trajectory: bool = True, episodes: int = 10,
   lines[4:4] = [markdown_table(["metric", "final (mean ± std over seeds)", "per seed", "at start"], rows), ""]
   if trajectory and meta.get("level") == "high" and meta.get("low"):
     lines += ["", _trajectory_section(run_dir, meta, out)]
-  if video:
-    out.mkdir(parents=True, exist_ok=True)
-    lines += ["", _video_section(run_dir, meta, out)]
-  path = out / "report.md"
-  text = "\n".join(lines) + "\n"
   out.mkdir(parents=True, exist_ok=True)
-  tmp = path.with_name(".report.md.tmp")
-  tmp.write_text(text)
-  tmp.replace(path)
-  return path
+  if video:
+    lines += ["", _video_section(run_dir, meta, out)]
+  return atomic.write_text(out / "report.md", "\n".join(lines) + "\n")
 
 
 def _trajectory_section(run_dir: Path, meta: dict, out: Path) -> str:

@@ -160,6 +160,7 @@ class PolicyCard:
       raise ckpt.CheckpointError(f"checkpoint metadata in {where} has card format {fmt!r} but this hdt reads "
                                  f"card format {CARD_FORMAT}: {fix}")
     ckpt.require(dict(meta), REQUIRED, where)
+    check_fields(meta, where)
     extra = {k: v for k, v in meta.items() if k not in _TYPED and k != FORMAT_KEY}
     get = meta.get
     return cls(level=meta["level"], agent=meta["agent"], task=meta["task"], family=meta["family"],
@@ -296,6 +297,25 @@ class PolicyCard:
       return other.delta_max
     raise ValueError(f"use={use!r}: one of {', '.join(USES)}")
 
+  def check_params(self, params) -> None:
+    """Refuses (one line) saved parameters whose policy network is not this card's: its layer widths,
+    observation and action sizes (a leading seed axis is allowed)."""
+    dims = [self.obs_size, *self.hidden_sizes, 2 * self.action_size]
+    want = list(zip(dims[:-1], dims[1:]))
+    try:
+      mlp = params["policy"]["params"]["mlp"]
+      names = [f"hidden_{i}" for i in range(len(mlp) - 1)] + ["out"]
+      got = [tuple(int(d) for d in np.shape(mlp[n]["kernel"])[-2:]) for n in names]
+    except (KeyError, TypeError, IndexError):
+      got = None
+    if got != want:
+      sizes = " x ".join(str(w[1]) for w in got[:-1]) if got else "unreadable"
+      raise ckpt.CheckpointError(
+          f"the checkpoint of {self.source or 'this policy'} does not match its metadata (hidden_sizes="
+          f"{list(self.hidden_sizes)}, obs_size={self.obs_size}, action_size={self.action_size}; the saved "
+          f"policy's layers: {sizes}): meta.json was edited or belongs to another run; restore it from a backup "
+          f"or re-train")
+
   @property
   def normalizer(self) -> bool:
     """Whether the saved policy has observation statistics beside it (recorded by the SAC config)."""
@@ -310,6 +330,38 @@ class PolicyCard:
                        f"{env.observation_size} (was the HL trained on another task?)")
     raise ValueError(f"the policy observes {self.obs_size} numbers, {self.agent} "
                      f"on {task} gives {env.observation_size}")
+
+
+_OPTIONAL = {"goal_space": str, "obs_lo_size": int, "obs_hi_size": int, "hl_horizon": int, "hl_obs": dict,
+             "env_overrides": dict, "task_overrides": dict, "sac": dict, "seeds": list, "low": dict,
+             "aligned_to": dict, "finetuned_from": dict, "best": dict, "discriminator": dict}
+
+
+def check_fields(meta: Mapping, where) -> None:
+  """Every field the card reads has its type and range (:data:`REQUIRED`, and the optional ones when
+  present), so an edited or damaged meta.json is refused in one line naming the field."""
+  def bad(key, expected):
+    raise ckpt.CheckpointError(f"checkpoint metadata in {where} has {key}={meta[key]!r}, expected {expected}: "
+                               f"the file was edited or damaged; re-run training, or restore it from a backup")
+
+  is_int = lambda v: isinstance(v, int) and not isinstance(v, bool)
+  if meta["level"] not in ("low", "high", "full"):
+    bad("level", "'low', 'high' or 'full'")
+  if meta["family"] not in GOAL_SPACE_NAMES:
+    bad("family", " or ".join(repr(f) for f in GOAL_SPACE_NAMES))
+  for key in ("obs_size", "action_size"):
+    if meta[key] <= 0:
+      bad(key, "a positive integer")
+  if not meta["hidden_sizes"] or not all(is_int(h) and h > 0 for h in meta["hidden_sizes"]):
+    bad("hidden_sizes", "a list of positive integers, e.g. [64, 64]")
+  for key, kind in _OPTIONAL.items():
+    v = meta.get(key)
+    if v is not None and not (is_int(v) if kind is int else isinstance(v, kind)):
+      bad(key, f"{'an' if kind is int else 'a'} {dict(str='string', int='integer', dict='JSON object', list='list')[kind.__name__]} or null")
+  hl_obs = meta.get("hl_obs") or {}
+  if not (all(is_int(i) for i in hl_obs.get("hl_relative", [])) and isinstance(hl_obs.get("hl_relative", []), list)
+          and isinstance(hl_obs.get("hl_absolute", True), bool)):
+    bad("hl_obs", '{"hl_relative": [integers], "hl_absolute": true or false}')
 
 
 def check_level(level, source, use: str) -> None:
@@ -327,7 +379,9 @@ def check_level(level, source, use: str) -> None:
 def load_card(run: str | Path, seed_index: int = 0, which: str = "final"):
   """(params, card) of one seed of a saved run."""
   params, meta = ckpt.load(run, seed_index, which)
-  return params, PolicyCard.from_json(meta, Path(run))
+  card = PolicyCard.from_json(meta, Path(run))
+  card.check_params(params)
+  return params, card
 
 
 def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):
@@ -338,5 +392,6 @@ def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):
   check_level(meta.get("level"), low, "low")
   card = PolicyCard.from_json(meta, Path(low) / f"seed_{seed_index}" / "meta.json").replace(source=str(low))
   card.compatible_with(None, "low")
+  card.check_params(params)
   check_recorded(meta)
   return params, meta, card.policy_fn(params.get(ckpt.NORM))

@@ -15,24 +15,28 @@ saying what to do.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import logging
 import math
 import os
-import shutil
-import tempfile
+import re
 from pathlib import Path
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
 import hdt
+from hdt import atomic
 from hdt.agents import normalizer
+from hdt.transfer import zoo
 from hdt.transfer.zoo import resolve as zoo_path  # zoo:NAME wherever a run is read
 
 FORMAT_VERSION = 1
+SEED_HASHES = "seed_sha256"  # a run's meta.json: the content hash of each seed's checkpoint
 
 
 class CheckpointError(ValueError):
@@ -40,11 +44,7 @@ class CheckpointError(ValueError):
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:
-  path = Path(path)
-  fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-  with os.fdopen(fd, "w") as f:
-    json.dump(obj, f, indent=1, sort_keys=True, default=jsonable)
-  os.replace(tmp, path)
+  atomic.write_json(path, obj, default=jsonable)
 
 
 def jsonable(x):
@@ -60,36 +60,49 @@ def seed_dir(run_dir: Path, seed_index: int) -> Path:
   return Path(run_dir) / f"seed_{seed_index}"
 
 
-def _atomic_dir(final: Path, write: Callable[[Path], None]) -> Path:
-  """Runs ``write(tmp)`` on a fresh temporary sibling of ``final``, then swaps it in with two renames
-  (final -> final.old, tmp -> final). Killed at any point, either ``final`` or ``final.old`` is a
-  complete earlier version (loaders fall back to ``.old``); a killed write leaves only a hidden
-  ``.<name>.*.tmp`` directory, removed by the next write of the same name (one writer per name)."""
-  final.parent.mkdir(parents=True, exist_ok=True)
-  for stale in final.parent.glob(f".{final.name}.*.tmp"):
-    shutil.rmtree(stale, ignore_errors=True)
-  tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".tmp"))
+_atomic_dir = atomic.replace_dir
+
+
+@contextlib.contextmanager
+def _quiet_orbax():
+  """Orbax logs each failure of its writer threads with a traceback (absl, ERROR) before raising
+  it in the caller: the caller's one-line error says it."""
+  logger = logging.getLogger("absl")
+  level = logger.level
+  logger.setLevel(logging.CRITICAL)
   try:
-    write(tmp)
-    old = final.with_name(final.name + ".old")
-    if final.exists():
-      if old.exists():
-        shutil.rmtree(old)
-      os.replace(final, old)
-    os.replace(tmp, final)
-    if old.exists():
-      shutil.rmtree(old)
-  except BaseException:
-    shutil.rmtree(tmp, ignore_errors=True)
-    raise
-  return final
+    yield
+  finally:
+    logger.setLevel(level)
+
+
+_OS_ERROR = re.compile(r"os_error_code='?(\d+)")
+
+
+def _orbax_save(path: Path, tree) -> None:
+  """``tree`` saved by orbax at ``path``; a file-system failure (a full disk, a read-only mount) is
+  raised as the OSError it is, naming ``path``."""
+  try:
+    with _quiet_orbax():
+      ocp.PyTreeCheckpointer().save(path, tree)
+  except Exception as e:  # orbax wraps OS errors in ValueError and others
+    code = _OS_ERROR.search(str(e))
+    if code is None:
+      raise
+    n = int(code.group(1))
+    raise OSError(n, os.strerror(n), str(path)) from None
+
+
+def _orbax_restore(path: Path):
+  with _quiet_orbax():
+    return ocp.PyTreeCheckpointer().restore(path)
 
 
 def _resolve(d: Path) -> Path | None:
   """``d``, or ``d.old`` when a write was killed between its two renames, or None."""
   if d.exists():
     return d
-  old = d.with_name(d.name + ".old")
+  old = atomic.old(d)
   return old if old.exists() else None
 
 
@@ -107,9 +120,9 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
     meta["best"] = best[1]
 
   def write(tmp: Path):
-    ocp.PyTreeCheckpointer().save(tmp / "params", params)
+    _orbax_save(tmp / "params", params)
     if best is not None:
-      ocp.PyTreeCheckpointer().save(tmp / "best" / "params", jax.tree.map(np.asarray, best[0]))
+      _orbax_save(tmp / "best" / "params", jax.tree.map(np.asarray, best[0]))
     write_json_atomic(tmp / "meta.json", meta)
 
   return _atomic_dir(seed_dir(run_dir, seed_index), write)
@@ -137,6 +150,31 @@ def content_hash(run_dir: str | Path, seed_index: int | None = None) -> str:
       h.update(str(f.relative_to(d)).encode() + b"\0")
       h.update(f.read_bytes())
   return h.hexdigest()
+
+
+def check_unchanged(run_dir: str | Path, seed_index: int) -> None:
+  """Refuses (CheckpointError) seed ``seed_index`` of ``run_dir`` if its files are not those its zoo
+  entry's zoo.json or its run's meta.json recorded (replaced by another run's, edited or damaged);
+  runs and entries that record no hash are not checked."""
+  run_dir = Path(zoo_path(run_dir))
+  info = zoo.info_of(run_dir)
+  if info is not None:
+    want, where = zoo.recorded_hash(info, seed_index), run_dir / "zoo.json"
+    try:
+      rel = f"zoo/{run_dir.resolve().relative_to(zoo.ZOO_DIR.resolve())}"
+    except ValueError:
+      rel = str(run_dir)
+    fix = f"restore the entry (e.g. git checkout -- {rel})"
+  else:
+    try:
+      hashes = json.loads((run_dir / "meta.json").read_text()).get(SEED_HASHES)
+    except (OSError, ValueError, AttributeError):
+      hashes = None
+    ok = isinstance(hashes, list) and 0 <= seed_index < len(hashes) and isinstance(hashes[seed_index], str)
+    want, where, fix = (hashes[seed_index] if ok else None), run_dir / "meta.json", "restore it from a backup, or re-train the run"
+  if want is not None and content_hash(run_dir, seed_index) != want:
+    raise CheckpointError(f"the checkpoint {_resolve_seed_dir(run_dir, seed_index)} is not the one {where} records "
+                          f"(its content hash differs: its files were replaced, edited or damaged); {fix}")
 
 
 def require(meta: dict, fields: dict[str, type | tuple], where: str | Path) -> dict:
@@ -229,6 +267,7 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
   run_dir = zoo_path(run_dir)
   check_which(which)
   meta = load_meta(run_dir, seed_index)
+  check_unchanged(run_dir, seed_index)
   d = _resolve_seed_dir(Path(run_dir).resolve(), seed_index)
   has_best = isinstance(meta.get("best"), dict)
   use = "best" if which == "best" and has_best else "final"
@@ -236,7 +275,7 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
     use = "best"  # a zoo LL keeps only the parameters HLs compose with
   path = d / "params" if use == "final" else d / "best" / "params"
   try:
-    params = ocp.PyTreeCheckpointer().restore(path)
+    params = _orbax_restore(path)
   except Exception as e:  # orbax raises several types for damaged files
     raise CheckpointError(f"corrupt checkpoint parameters in {path} ({type(e).__name__}: "
                           f"{e}); re-run training, or restore the directory from a backup") from e
@@ -322,7 +361,7 @@ def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], i
     info["best_leaves"] = _leaf_specs(best_leaves)
 
   def write(tmp: Path):
-    ocp.PyTreeCheckpointer().save(tmp / "arrays", {k: v for k, v in arrays.items() if v})
+    _orbax_save(tmp / "arrays", {k: v for k, v in arrays.items() if v})
     write_json_atomic(tmp / "state.json", info)
 
   return _atomic_dir(state_dir(run_dir), write)
@@ -417,7 +456,7 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
   best_saved = info["best_leaves"] if with_best else []
   best_def, best_idx, best_shapes = fits(best_saved, best_template) if with_best else (None, [], [])
   try:
-    arrays = ocp.PyTreeCheckpointer().restore(d / "arrays")
+    arrays = _orbax_restore(d / "arrays")
     group = lambda name, n: [np.asarray(arrays[name][f"{i:05d}"]) for i in range(n)]
     state, best = group("state", len(saved)), group("best", len(best_saved))
     hist = dict(zip([h[0] for h in info.get("history", [])], group("history", len(info.get("history", [])))))

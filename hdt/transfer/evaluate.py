@@ -56,6 +56,7 @@ def _load(run, which: str, what: str):
   params, metas = ckpt.load_all(run, ckpt.check_which(which, what))
   for i, m in enumerate(metas):
     PolicyCard.from_json(m, Path(run) / f"seed_{i}" / "meta.json")  # of a format and with fields this hdt reads
+  PolicyCard.from_json(metas[0], run).check_params(params)
   return params, [dict(metas[0], params=ckpt.params_label(metas))] + metas[1:]
 
 
@@ -69,12 +70,14 @@ def trained_over(hm: dict, low: str | Path) -> int | None:
 
 
 def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
-  """Refuses an HL over the LL run it was trained over if that LL changed since (retrained)."""
-  seed = trained_over(hm, low)
-  if seed is None or not hm["low"].get("sha256"):
-    return  # another LL (a transfer, not a dependency), or trained before hashes were recorded
+  """Refuses an HL over the LL run it was trained over if that LL changed since (retrained): against
+  the hash the HL's card records, or for a zoo HL without one, its zoo.json."""
   from hdt.transfer import zoo
-  if hm["low"]["sha256"] not in zoo.hash_aliases(low, seed):
+  seed = trained_over(hm, low)
+  want = None if seed is None else hm["low"].get("sha256") or zoo.recorded_low_hash(high)
+  if not want:
+    return  # another LL (a transfer, not a dependency), or nothing recorded (ckpt.load checks the LL's own record)
+  if want not in zoo.hash_aliases(low, seed):
     raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
                                f"content hash differs: was it retrained?); retrain the HL over it, or "
                                f"restore the LL it was trained over")
@@ -108,12 +111,18 @@ def load_policy(run: str | Path, which: str = "final") -> Policy:
   return Policy(params["policy"], metas[0], obs_norm=params.get(ckpt.NORM))
 
 
+BOXES = ("refuse", "scale", "keep")  # what compose does when the HL's and the LL's goal boxes differ
+
+
 def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str = "final",
             low_which: str = LOW_PARAMS) -> Policy:
   """HL of ``high`` driving the LL of ``low``. Goal spaces must agree; goal boxes that differ are
   refused unless ``box='scale'`` (the HL's [-1, 1] actions span the LL's box) or ``box='keep'``
   (the HL's box in metres). ``which`` / ``low_which``: the HL's / LL's "final" parameters or their
   "best" evaluation's (the LL's best by default, as the authors compose and as train_high does)."""
+  if box not in BOXES:
+    raise ValueError(f"box={box!r}: pass 'refuse' (goal boxes must agree), 'scale' (map the HL's box onto the "
+                     f"LL's) or 'keep' (the HL's box in metres)")
   hp, hmetas = _load(high, which, "which")
   lp, lmetas = _load(low, low_which, "low_which")
   hm, lm = hmetas[0], lmetas[0]

@@ -1,29 +1,45 @@
-"""Run directories hdt owns: which directories it may write, a lock per directory, atomic replacement.
+"""Run directories hdt owns: the one rule for where hdt writes, a lock per directory, atomic replacement.
 
-hdt writes only into a directory that does not exist yet, is empty, or is an hdt directory of the
-same kind (it holds the marker ``.hdt-run``; runs written before the marker are recognised by their
-``meta.json`` or saved training state). Anything else is refused with a message naming what is
-there. While a process writes a directory it holds an exclusive ``flock`` on ``.hdt-lock`` inside
-it; the kernel drops the lock when the process dies (even by SIGKILL), so a lock left by a dead
-process is simply taken over. ``overwrite`` moves the old directory aside with one rename before
-anything new is written, so the new run never shares the directory with a file of the old one.
+hdt writes only into a directory that is new or empty, or that it wrote itself: one holding its marker
+``.hdt-run`` (written by hdt with the directory's kind and identity when it first claims it). Runs
+written before the marker count as hdt's only with all of hdt's own structure (``config.json``,
+``meta.json`` and a ``seed_<i>/meta.json`` checkpoint, or a saved training state): a directory that
+merely holds a ``meta.json`` is the user's. The directory must also not lie inside another hdt run (a
+sweep, a quickstart or an experiment holds runs), not be, hold or lie inside a run the command reads
+(its LL, HL or imitated LL, resolved through symlinks and ``zoo:``), not be a symbolic link, and not
+lie in the model zoo unless the command is ``hdt zoo export``. Anything else is refused with a message
+naming what is there, and never with the advice to overwrite it.
+
+While a process writes a directory it holds an exclusive ``flock`` on the directory itself (and on
+``.hdt-lock`` in it, which names its PID); the kernel drops the locks when the process dies (even by
+SIGKILL), so a lock left by a dead process is simply taken over, and deleting ``.hdt-lock`` does not
+unlock a directory. ``overwrite`` moves the old directory aside to a unique hidden name of hdt's own
+with one rename before anything new is written, so the new run never shares the directory with a
+file of the old one, and a sibling hdt did not create is never touched. A claim that fails before
+anything was saved removes what it created.
 """
 
 from __future__ import annotations
 
 import contextlib
+import datetime
 import errno
 import fcntl
 import json
 import os
-import shutil
-import signal
-import threading
+import socket
+import tempfile
+import uuid
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Mapping
+
+from hdt import atomic
+from hdt.transfer import zoo
 
 MARKER = ".hdt-run"
 LOCK = ".hdt-lock"
+REPLACED = ".hdt-replaced"  # inside a run that an overwrite moved aside: what it replaced
+CONTAINERS = ("sweep", "quickstart", "experiment")  # kinds of directory that hold runs of their own
 # Writing a run under these would touch the operating system's own files.
 SYSTEM_DIRS = tuple(Path(p) for p in ("/bin", "/boot", "/dev", "/etc", "/lib", "/lib64", "/proc", "/sbin",
                                       "/sys", "/usr", "/var/lib", "/var/log"))
@@ -40,20 +56,47 @@ def _what_is_there(path: Path, limit: int = 4) -> str:
   return ", ".join(names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
 
 
-def _marker_kind(path: Path) -> str | None:
-  """The kind recorded in ``path``'s marker; "run" for runs written before markers; else None."""
+def _json_object(path: Path) -> dict | None:
   try:
-    kind = json.loads((path / MARKER).read_text()).get("kind")
-    return kind if isinstance(kind, str) else None
-  except (OSError, ValueError, AttributeError):
-    pass
-  legacy = [path / "meta.json", path / "state" / "state.json", path / "state.old" / "state.json"]
-  return "run" if any(p.is_file() for p in legacy) else None
+    obj = json.loads(path.read_text())
+  except (OSError, ValueError):
+    return None
+  return obj if isinstance(obj, dict) else None
+
+
+def _legacy_run(path: Path) -> bool:
+  """A run written before the marker: all of hdt's files, or a resumable state of hdt's format."""
+  seeds = [p for p in path.glob("seed_*") if p.name.removesuffix(".old")[5:].isdigit()]
+  complete = ((path / "config.json").is_file() and _json_object(path / "meta.json") is not None
+              and any(_json_object(p / "meta.json") is not None for p in seeds))
+  state = any((_json_object(path / d / "state.json") or {}).get("kind") == "train_state"
+              for d in ("state", "state.old"))
+  return complete or state
+
+
+def owner_kind(path) -> str | None:
+  """The kind of hdt directory ``path`` is ("run", "sweep", "eval", ...), None if hdt did not write it."""
+  path = Path(path)
+  if not path.is_dir():
+    return None
+  kind = (_json_object(path / MARKER) or {}).get("kind")
+  if isinstance(kind, str):
+    return kind
+  return "run" if _legacy_run(path) else None
+
+
+def _marker(kind: str) -> dict:
+  import hdt
+  return dict(kind=kind, id=uuid.uuid4().hex, created=datetime.datetime.now().isoformat(timespec="seconds"),
+              host=socket.gethostname(), pid=os.getpid(), hdt_version=hdt.__version__)
 
 
 def check_out(out, what: str = "out") -> Path:
-  """``out`` as a Path, refused (RunDirError, nothing written) if it is empty, an existing file, under
-  a file or a system directory, or in a directory this process cannot write."""
+  """``out`` as a Path, refused (RunDirError, nothing written) if it is empty, not a path, a symbolic
+  link, an existing file, under a file or a system directory, or in a directory this process cannot
+  write."""
+  if not (out is None or isinstance(out, (str, os.PathLike))):
+    raise RunDirError(f"{what}={out!r}: give the run directory as a path (str or pathlib.Path), e.g. runs/my-run")
   if out is None or not str(out).strip():
     raise RunDirError(f"{what} is empty, which would write into the current directory; give a directory "
                       f"name, e.g. runs/my-run")
@@ -61,6 +104,9 @@ def check_out(out, what: str = "out") -> Path:
   full = Path(os.path.abspath(path))
   if any(full == s or s in full.parents for s in SYSTEM_DIRS) or full == Path("/"):
     raise RunDirError(f"{what}={out} is a system directory; pick a directory of your own, e.g. runs/my-run")
+  if path.is_symlink():
+    raise RunDirError(f"{what}={out} is a symbolic link (to {os.readlink(path)}); hdt does not write through "
+                      f"links: pass the directory itself, or a new directory")
   if path.exists() and not path.is_dir():
     raise RunDirError(f"{what}={out} is an existing file; pass a directory for the run (it will hold "
                       f"config.json, metrics.csv, seed_0/, state/, ...)")
@@ -75,25 +121,74 @@ def check_out(out, what: str = "out") -> Path:
 
 
 def is_empty(path: Path) -> bool:
-  """No entries but hdt's own bookkeeping (marker, lock, a killed save's hidden temporaries)."""
-  return all(p.name in (MARKER, LOCK) or (p.name.startswith(".") and p.name.endswith(".tmp"))
-             for p in path.iterdir())
+  """No entries at all, or hdt's marker and nothing but its bookkeeping (lock, a killed save's hidden
+  temporaries): a directory without the marker that holds anything is not hdt's to take."""
+  names = [p.name for p in path.iterdir()]
+  return not names or (MARKER in names and all(n in (MARKER, LOCK) or atomic.is_temp(n) for n in names))
+
+
+def _real(path) -> Path:
+  return Path(os.path.realpath(os.path.expanduser(str(path))))
+
+
+def _inputs(reads) -> list[tuple[str, Path]]:
+  """(label, resolved directory) of each run a command reads; ``reads``: {label: path} or paths."""
+  items = reads.items() if isinstance(reads, Mapping) else [("", r) for r in reads or ()]
+  out = []
+  for label, r in items:
+    if r is None:
+      continue
+    try:
+      out.append((label, _real(zoo.resolve(r))))
+    except zoo.ZooError:
+      continue  # an unknown zoo name is reported where it is read
+  return out
+
+
+def check_place(path, what: str = "out", reads=(), zoo_ok: bool = False) -> None:
+  """Refuses ``path`` in the model zoo (unless ``zoo_ok``), inside another hdt run, or where it is,
+  holds or lies inside a run the command reads (``reads``: see :func:`_inputs`)."""
+  real = _real(path)
+  zoo_dir = _real(zoo.ZOO_DIR)
+  if not zoo_ok and (real == zoo_dir or zoo_dir in real.parents):
+    raise RunDirError(f"{what}={path} lies in the model zoo ({zoo_dir}), which only `hdt zoo export` writes; "
+                      f"pass a directory outside it, e.g. runs/my-run")
+  for parent in real.parents:
+    kind = owner_kind(parent) or ("zoo entry" if (parent / "zoo.json").is_file() else None)
+    if kind is not None and kind not in CONTAINERS:
+      raise RunDirError(f"{what}={path} lies inside the hdt {kind} directory {parent}, and writing there would "
+                        f"change it; pass a directory outside it")
+  for label, r in _inputs(reads):
+    name = f"the {label} run {r}" if label else f"the run {r}"
+    if r == real:
+      where = f"is {name} this command reads"
+    elif r in real.parents:
+      where = f"lies inside {name} this command reads"
+    elif real in r.parents:
+      where = f"holds {name} this command reads"
+    else:
+      continue
+    raise RunDirError(f"{what}={path} {where}; writing there would destroy that input: pass another {what}")
 
 
 def check_claimable(out, kind: str = "run", resume: bool = False, overwrite: bool = False,
-                    reuse: bool = False, what: str = "out") -> Path:
-  """Read-only checks of :func:`claim`: ``out`` must be new, empty, or an hdt directory of ``kind``
-  that ``resume`` / ``overwrite`` / ``reuse`` (add to it) allows writing."""
+                    reuse: bool = False, what: str = "out", reads=(), zoo_ok: bool = False,
+                    legacy=None) -> Path:
+  """Read-only checks of :func:`claim`: ``out`` must be a place hdt may write (:func:`check_out`,
+  :func:`check_place`), and new, empty, or an hdt directory of ``kind`` that ``resume`` /
+  ``overwrite`` / ``reuse`` (add to it) allows writing. ``legacy(path)``: whether an unmarked
+  directory is one hdt wrote as ``kind`` before the marker existed (runs are recognised here)."""
   path = check_out(out, what)
+  check_place(path, what, reads, zoo_ok)
   if not path.exists() or is_empty(path):
     return path
-  found = _marker_kind(path)
+  found = owner_kind(path) or (kind if legacy is not None and legacy(path) else None)
   if found is None:
     raise RunDirError(f"{what}={out} is not an hdt directory and not empty (it holds {_what_is_there(path)}); "
                       f"hdt writes only into new or empty directories or its own runs: pass another {what}")
   if found != kind:
-    raise RunDirError(f"{what}={out} holds an hdt {found} directory where this command writes {'an' if kind[0] in 'aeiou' else 'a'} {kind} "
-                      f"directory; pass another {what}")
+    raise RunDirError(f"{what}={out} holds an hdt {found} directory where this command writes "
+                      f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} directory; pass another {what}")
   if not (resume or overwrite or reuse):
     raise RunDirError(f"{out} already holds a {kind}: pass --resume (resume=True) to continue it, --overwrite "
                       f"(overwrite=True) to replace it, or another {what}")
@@ -107,51 +202,134 @@ def _holder(lock_path: Path) -> str:
     return "another process"
 
 
-@contextlib.contextmanager
-def _locked(path: Path, kind: str) -> Iterator[None]:
-  """Holds ``path``/.hdt-lock (creating ``path`` and its marker) until the block ends."""
-  path.mkdir(parents=True, exist_ok=True)
-  lock_path = path / LOCK
-  fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+def _flock(fd: int, path: Path) -> bool:
+  """Locks ``fd`` (False where the file system cannot lock it); RunDirError if another process has."""
   try:
-    try:
-      fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as e:
-      if e.errno not in (errno.EAGAIN, errno.EACCES):
-        raise
-      raise RunDirError(f"{path} is in use by {_holder(lock_path)}, which is writing to it; wait for it to "
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return True
+  except OSError as e:
+    if e.errno in (errno.EAGAIN, errno.EACCES):
+      raise RunDirError(f"{path} is in use by {_holder(path / LOCK)}, which is writing to it; wait for it to "
                         f"finish (or stop it), or pass another --out") from None
-    os.ftruncate(fd, 0)
-    os.write(fd, f"{os.getpid()}\n".encode())
-    if not (path / MARKER).exists():
-      from hdt.transfer.checkpoint import write_json_atomic  # checkpoint imports nothing from here
-      write_json_atomic(path / MARKER, {"kind": kind})
-    LAST_CLAIMED.append(path)
+    if e.errno in (errno.EINVAL, errno.ENOLCK, errno.EOPNOTSUPP, errno.EBADF):
+      return False
+    raise
+
+
+@contextlib.contextmanager
+def _locked(path: Path, kind: str, mark: bool = True) -> Iterator[None]:
+  """Holds the locks of ``path`` (creating it, and with ``mark`` its marker) until the block ends."""
+  atomic.make_dirs(path)
+  fds, dir_locked = [], False
+  try:
+    fds.append(os.open(path, os.O_RDONLY | os.O_DIRECTORY))
+    dir_locked = _flock(fds[0], path)
+    fds.append(os.open(path / LOCK, os.O_RDWR | os.O_CREAT, atomic.file_mode()))
+    if not (_flock(fds[1], path) or dir_locked):
+      raise RunDirError(f"cannot lock {path} (its file system does not support locks); pass an --out on a "
+                        f"local disk")
+    if os.fstat(fds[0]).st_ino != os.stat(path).st_ino:  # replaced while we waited: start over
+      raise RunDirError(f"{path} was replaced by another process while this one claimed it; run the command again")
+    os.ftruncate(fds[1], 0)
+    os.write(fds[1], f"{os.getpid()}\n".encode())
+    if mark and not (path / MARKER).exists():
+      atomic.write_json(path / MARKER, _marker(kind))
     yield
   finally:
-    os.close(fd)  # releases the flock
+    if dir_locked:  # the directory's own lock guards the PID file: no other process holds it now
+      with contextlib.suppress(OSError):
+        os.unlink(LOCK, dir_fd=fds[0])  # in the locked directory, wherever it was moved
+    for fd in fds:
+      os.close(fd)  # releases the locks
 
 
-def _aside(path: Path) -> Path:
-  return path.with_name(f".{path.name}.replaced-{os.getpid()}")
+def _aside_pattern(path: Path) -> str:
+  return f".{path.name}.hdt-replaced-*"
+
+
+def _clear_asides(path: Path) -> None:
+  """Deletes what a killed overwrite of ``path`` left: hidden siblings of hdt's own naming that carry
+  its tag for ``path`` (and empty ones it had just created); nothing else."""
+  for d in path.parent.glob(_aside_pattern(path)):
+    if (_json_object(d / REPLACED) or {}).get("from") == path.name:
+      atomic.remove(d)
+    else:
+      with contextlib.suppress(OSError):
+        d.rmdir()  # only if empty
+
+
+def _move_aside(path: Path, kind: str, legacy=None) -> Path:
+  """Moves the hdt directory ``path`` (locked, checked again to be hdt's ``kind``) to a unique
+  hidden sibling of hdt's naming, tagged as such; returns it."""
+  if owner_kind(path) != kind and not (legacy is not None and legacy(path)):
+    raise RunDirError(f"{path} changed while this command started (it is no longer an hdt {kind}); "
+                      f"it was left as it is: pass another --out")
+  atomic.write_json(path / REPLACED, {"from": path.name, "pid": os.getpid()})
+  aside = Path(tempfile.mkdtemp(dir=path.parent, prefix=_aside_pattern(path)[:-1]))
+  os.replace(path, aside)  # onto the empty directory just made: one rename
+  return aside
 
 
 @contextlib.contextmanager
 def claim(out, kind: str = "run", resume: bool = False, overwrite: bool = False,
-          reuse: bool = False) -> Iterator[Path]:
+          reuse: bool = False, reads=(), zoo_ok: bool = False, legacy=None) -> Iterator[Path]:
   """Checks ``out`` (:func:`check_claimable`), locks it, and yields it as a Path. With ``overwrite``
   an existing directory is first locked (so nobody is writing it), moved aside in one rename and
-  deleted; the block then writes a fresh directory."""
-  path = check_claimable(out, kind, resume, overwrite, reuse)
-  for stale in path.parent.glob(f".{path.name}.replaced-*"):  # left by a killed overwrite
-    shutil.rmtree(stale, ignore_errors=True)
+  deleted; the block then writes a fresh directory. If the block fails while the directory holds
+  nothing but hdt's bookkeeping, what this claim created is removed again."""
+  path = check_claimable(out, kind, resume, overwrite, reuse, reads=reads, zoo_ok=zoo_ok, legacy=legacy)
+  _clear_asides(path)
+  before = {p.name for p in path.iterdir()} if path.is_dir() else None
   if overwrite and not resume and path.exists() and not is_empty(path):
-    with _locked(path, kind):
-      aside = _aside(path)
-      os.replace(path, aside)
-    shutil.rmtree(aside)
+    with _locked(path, kind, mark=False):
+      aside = _move_aside(path, kind, legacy)
+    atomic.remove(aside)
+    before = None
   with _locked(path, kind):
-    yield path
+    LAST_CLAIMED.append(path)
+    try:
+      yield path
+    except BaseException:
+      if path.is_dir() and is_empty(path):  # nothing was saved: leave no trace of this claim
+        if before is None:
+          atomic.remove(path)
+        else:
+          for p in path.iterdir():
+            if p.name not in before:
+              atomic.remove(p)
+      raise
+
+
+def install(tmp, out, kind: str = "run", overwrite: bool = False, reads=(), zoo_ok: bool = False,
+            what: str = "out") -> Path:
+  """Moves the complete directory ``tmp`` (written elsewhere, e.g. a hidden sibling) to ``out`` in one
+  rename, marked as hdt's ``kind``; an hdt directory already at ``out`` is replaced only with
+  ``overwrite`` (moved aside under its lock first). Refused as :func:`claim` refuses."""
+  tmp = Path(tmp)
+  path = check_claimable(out, kind, overwrite=overwrite, reads=reads, zoo_ok=zoo_ok, what=what)
+  _clear_asides(path)
+  if not (tmp / MARKER).exists():
+    atomic.write_json(tmp / MARKER, _marker(kind))
+  atomic.make_dirs(path.parent)
+  if not path.exists():
+    os.replace(tmp, path)
+    return path
+  with _locked(path, kind, mark=False):
+    aside = _move_aside(path, kind) if not is_empty(path) else None
+    if aside is None:
+      atomic.remove(path)  # nothing of anyone's in it
+    os.replace(tmp, path)
+  if aside is not None:
+    atomic.remove(aside)
+  return path
+
+
+def holds_only_runs(path: Path, own_files=lambda name: False) -> bool:
+  """Whether ``path`` holds hdt runs and otherwise only files ``own_files(name)`` says a container of
+  them writes (how sweeps and experiments written before the marker are recognised)."""
+  entries = [p for p in path.iterdir() if not atomic.is_temp(p.name) and p.name not in (MARKER, LOCK)]
+  runs = [p for p in entries if owner_kind(p) is not None]
+  return bool(runs) and all(p in runs or own_files(p.name) for p in entries)
 
 
 def discard(out, kind: str = "run") -> None:
@@ -160,22 +338,3 @@ def discard(out, kind: str = "run") -> None:
   with claim(out, kind, overwrite=True):
     pass
 
-
-@contextlib.contextmanager
-def deferred_interrupt() -> Iterator[None]:
-  """Ctrl-C (SIGINT) inside the block is held back until the block ends, so a checkpoint being
-  written is finished rather than left half done (only in the main thread; elsewhere a no-op)."""
-  if threading.current_thread() is not threading.main_thread():
-    yield
-    return
-  caught = []
-  previous = signal.signal(signal.SIGINT, lambda *a: caught.append(a))
-  try:
-    yield
-  finally:
-    signal.signal(signal.SIGINT, previous)
-    if caught:
-      if callable(previous):
-        previous(*caught[0])
-      else:
-        os.kill(os.getpid(), signal.SIGINT)

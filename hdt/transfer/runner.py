@@ -18,6 +18,7 @@ from typing import Any, Callable, Sequence
 import jax
 import numpy as np
 
+from hdt import atomic, interrupt
 from hdt.agents import sharding
 from hdt.agents import train as sac_train
 from hdt.agents.plugins import Plugin
@@ -138,7 +139,13 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
   seeds = sac_train.seed_list(options.seeds)
   if resume is not False and len(points) > 1:
     raise ValueError("resume continues one run: resume the grid points one at a time")
-  outputs = [_outputs(out, resume, overwrite) for _, out in points]
+  reads = inputs(meta)
+  outputs = [_outputs(out, resume, overwrite, reads) for _, out in points]
+  written = [os.path.realpath(d) for d, _ in outputs if d is not None]
+  if len(set(written)) < len(written):
+    twice = next(d for d in written if written.count(d) > 1)
+    raise ValueError(f"two grid points would write the same directory {twice} (are two of their values "
+                     f"equal?); give each point its own out")
   source = outputs[0][1]
   save_steps = _save_steps(config, options.save_every)
   # Compiled programs are saved and reloaded (hdt.cache.compiled) when the key below names all they
@@ -159,7 +166,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
     for run_dir, _ in outputs:
       if run_dir is not None:
         claims.enter_context(rundir.claim(run_dir, resume=source is not None and _same(source, run_dir),
-                                          overwrite=overwrite))
+                                          overwrite=overwrite, reads=reads))
     run_dir = outputs[0][0]
     ts = history = best = None
     if run_dir is not None and source is not None and _same(source, run_dir):
@@ -168,15 +175,17 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       ts, history, best = _resume(source, trainer, infos[0])
 
     def on_chunk(step, ts, hist, best):
+      interrupt.raise_if_interrupted()  # a Ctrl-C a library swallowed stops the run here
       if any(d is not None for d, _ in outputs) and (
           step // save_steps > (step - config.env_steps_per_chunk) // save_steps or step == config.total_env_steps):
         hist = {k: np.stack(v, axis=1) for k, v in hist.items()}
         for p, (run_dir, _) in enumerate(outputs):
           if run_dir is not None:
-            with rundir.deferred_interrupt():
+            with interrupt.deferred():
               ckpt.save_state(run_dir, part(ts, p), part(hist, p), dict(infos[p], env_steps=step),
                               None if best is None else part(best, p))
 
+    interrupt.raise_if_interrupted()
     start = 0 if ts is None else int(np.max(jax.device_get(ts.env_steps)))
     if not options.quiet:
       _device_hint(len(points) * S, stage.label)
@@ -199,7 +208,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       res_p = sac_train.RunResult(part(params, p), part(res.history, p), part(res.state, p),
                                   None if res.best is None else part(res.best, p))
       if run_dir is not None:
-        with rundir.deferred_interrupt():  # a Ctrl-C here would leave some seeds unwritten
+        with interrupt.deferred():  # a Ctrl-C here would leave some seeds unwritten
           _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p)
       results.append(RunResult(run_dir, res_p.params, res_p.history, infos[p]["meta"], res_p.best))
   return results
@@ -244,7 +253,8 @@ def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params
               best=_seed_best(res.best, i))
   write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
   write_tensorboard(run_dir / "tb", res.history, seeds)
-  ckpt.write_json_atomic(run_dir / "meta.json", dict(meta, seeds=seeds))
+  hashes = [ckpt.content_hash(run_dir, i) for i in range(len(seeds))]  # checked on every load
+  ckpt.write_json_atomic(run_dir / "meta.json", dict(meta, seeds=seeds, **{ckpt.SEED_HASHES: hashes}))
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -276,20 +286,39 @@ def check_memory(need: int, what: str, fix: str) -> None:
                      f"available: {fix}")
 
 
+def _mlp_params(sizes, n_in: int, n_out: int) -> int:
+  dims = [n_in, *sizes, n_out]
+  return sum(a * b + b for a, b in zip(dims[:-1], dims[1:]))
+
+
+def network_bytes(obs_size: int, action_size: int, config: SACConfig) -> int:
+  """Float32 bytes of one seed's SAC networks as training keeps them: the actor with its gradient and
+  two Adam moments (4 copies), the twin critics (and V) also with their targets (5 copies), and a
+  batch of activations."""
+  actor = _mlp_params(config.hidden_sizes, obs_size, 2 * action_size)
+  critics = 2 * _mlp_params(config.critic_sizes, obs_size + action_size, 1)
+  if getattr(config, "value_net", False):
+    critics += _mlp_params(config.critic_sizes, obs_size, 1)
+  widest = max([*config.hidden_sizes, *config.critic_sizes])
+  return 4 * (4 * actor + 5 * critics + 8 * config.batch_size * widest * len(config.critic_sizes))
+
+
 def check_train_memory(env, config: SACConfig, seeds, points: int = 1) -> None:
-  """Estimate: per seed (and grid point), the replay buffer (obs, next obs, action, reward, discount
-  in float32) and the parallel training and evaluation env states."""
+  """Estimate, per seed (and grid point): the networks (:func:`network_bytes`), the replay buffer (obs,
+  next obs, action, reward, discount in float32), the training env states (~2 copies) and the
+  evaluation episodes' env states (~4 copies, as hdt.transfer.evaluate counts them)."""
   n = seeds if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool) else \
       (len(seeds) if hasattr(seeds, "__len__") else 1)
   if n <= 0:
     return  # seed_list explains
   n *= points
   transition = 4 * (2 * env.observation_size + env.action_size + 2)
-  per_seed = (config.buffer_size * transition
-              + (config.num_envs + config.num_eval_episodes) * state_bytes(env))
-  check_memory(n * per_seed, f"training {n} seeds (replay buffer of {config.buffer_size} and "
-               f"{config.num_envs} + {config.num_eval_episodes} env states per seed)",
-               "lower the number of seeds, buffer_size, num_envs or num_eval_episodes")
+  per_seed = (config.buffer_size * transition + network_bytes(env.observation_size, env.action_size, config)
+              + (2 * config.num_envs + 4 * config.num_eval_episodes) * state_bytes(env))
+  check_memory(n * per_seed, f"training {n} seeds (networks {list(config.hidden_sizes)}, replay buffer of "
+               f"{config.buffer_size}, {config.num_envs} env(s) and {config.num_eval_episodes} evaluation "
+               f"episodes per seed)",
+               "lower the number of seeds, hidden_sizes, buffer_size, num_envs or num_eval_episodes")
 
 
 def _seed_best(best: dict | None, i: int) -> tuple[dict, dict] | None:
@@ -302,7 +331,16 @@ def _seed_best(best: dict | None, i: int) -> tuple[dict, dict] | None:
 
 
 
-def _outputs(out, resume, overwrite=False) -> tuple[Path | None, Path | None]:
+# The runs a stage reads, by where its card records them (hdt.transfer.rundir never writes over them).
+INPUTS = ("low", "aligned_to", "finetuned_from")
+
+
+def inputs(meta: dict) -> dict[str, str]:
+  """{what: run directory} of the runs a stage's card ``meta`` says it reads."""
+  return {k: meta[k]["path"] for k in INPUTS if isinstance(meta.get(k), dict) and isinstance(meta[k].get("path"), str)}
+
+
+def _outputs(out, resume, overwrite=False, reads=()) -> tuple[Path | None, Path | None]:
   """(run dir to write or None, run dir to resume from or None), checked without touching disk."""
   if resume is not False and overwrite:
     raise ValueError("resume and overwrite exclude each other: resume continues the run in out=, "
@@ -322,7 +360,8 @@ def _outputs(out, resume, overwrite=False) -> tuple[Path | None, Path | None]:
     ckpt.load_state_info(source)  # exists, readable, of this format
   if out is not None:
     same = source is not None and _same(source, out)
-    out = rundir.check_claimable(out, resume=same, overwrite=overwrite)
+    reads = dict(reads, **({"resumed": str(source)} if source is not None and not same else {}))
+    out = rundir.check_claimable(out, resume=same, overwrite=overwrite, reads=reads)
   return out, source
 
 
@@ -430,12 +469,10 @@ def write_metrics_csv(path: Path, history: dict, seeds) -> None:
       rows.append({"seed": s, "kind": "eval", "env_steps": float(ev["eval/env_steps"][i, e])}
                   | {k: float(np.mean(v[i, e])) for k, v in ev.items()})
   keys = list(dict.fromkeys(k for r in rows for k in r))
-  tmp = path.with_name("." + path.name + ".tmp")
-  with open(tmp, "w", newline="") as f:
+  with atomic.open_atomic(path, "w", newline="") as f:
     w = csv.DictWriter(f, fieldnames=keys)
     w.writeheader()
     w.writerows(rows)
-  tmp.replace(path)
 
 
 def write_tensorboard(log_dir: Path, history: dict, seeds) -> None:

@@ -2,9 +2,11 @@
 directory is accepted (``hdt eval --high zoo:arm_point/push1 --low zoo:arm_point/low``).
 
 An entry is a policy-only copy of a run directory (``meta.json``, ``config.json``, ``seed_*/``; no
-resumable ``state/``) plus ``zoo.json``: the command that trained it, its budget, its evaluation numbers
-and a small deterministic re-evaluation (``check``) that tests replay within noise (:func:`within_noise`:
-float differences between CPUs can flip a contact-rich episode). An LL entry keeps only the policy
+resumable ``state/``) plus ``zoo.json``: the command that trained it, its budget, its evaluation numbers,
+the content hash of each seed's checkpoint (checked whenever the entry is loaded; an HL's also of the
+LL seed it composes with) and a small deterministic re-evaluation (``check``) that tests replay within
+noise (:func:`within_noise`: float differences between CPUs can flip a contact-rich episode). Names
+are names, not paths: one or two parts of ``[a-z0-9_]``, and ``zoo:NAME`` never leaves ``zoo/``. An LL entry keeps only the policy
 (and observation statistics) of its best periodic evaluation: what HLs compose with and alignment
 imitates (nothing loads an LL's critics; ``hdt eval --policy`` of a zoo LL loads these too). An HL
 entry keeps its whole final SAC, which KL finetuning starts from (the authors'
@@ -13,8 +15,11 @@ finetune_high_level_kl.py), and the policy of its best evaluation, which the KL 
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
+import os
+import re
 import shutil
 from pathlib import Path
 
@@ -22,6 +27,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 import hdt
+from hdt import atomic
 from hdt.agents import normalizer
 
 ZOO_DIR = Path(__file__).resolve().parents[2] / "zoo"
@@ -33,20 +39,61 @@ class ZooError(ValueError):
   pass
 
 
+NAME = re.compile(r"[a-z0-9_]+(/[a-z0-9_]+)?")
+
+
+def check_name(name) -> str:
+  """``name`` if it is an entry name (one or two parts of ``[a-z0-9_]``, e.g. ``point/low``), else a
+  one-line ZooError: a name is never a path."""
+  if not isinstance(name, str) or not NAME.fullmatch(name):
+    raise ZooError(f"zoo name {name!r}: a name is one or two parts of lowercase letters, digits and '_' "
+                   f"joined by '/', e.g. point/low (see `hdt zoo`)")
+  return name
+
+
 def resolve(path):
-  """``zoo:NAME`` -> the entry's directory; any other path is returned unchanged."""
+  """``zoo:NAME`` -> the entry's directory (inside ``zoo/``, never through a link out of it); any
+  other path is returned unchanged."""
   if isinstance(path, (str, Path)) and str(path).startswith(PREFIX):  # argparse may give a Path
-    name = str(path)[len(PREFIX):].strip("/")
+    name = check_name(str(path)[len(PREFIX):])
     d = ZOO_DIR / name
-    if not name or not (d / "zoo.json").is_file():
+    root = os.path.realpath(ZOO_DIR)
+    if not os.path.realpath(d).startswith(root + os.sep):
+      raise ZooError(f"zoo entry {name!r} points outside {ZOO_DIR}; restore it (git checkout -- zoo/{name})")
+    if not (d / "zoo.json").is_file():
       raise ZooError(f"no zoo entry {name!r}; entries: {', '.join(names()) or '(none)'} (see `hdt zoo`)")
     return d
   return path
 
 
 def names() -> list[str]:
-  found = (p.parent.relative_to(ZOO_DIR) for p in ZOO_DIR.glob("**/zoo.json"))
-  return sorted(str(p) for p in found if not any(part.startswith(".") for part in p.parts))
+  found = (str(p.parent.relative_to(ZOO_DIR)) for p in ZOO_DIR.glob("**/zoo.json"))
+  return sorted(n for n in found if NAME.fullmatch(n))
+
+
+def info_of(run) -> dict | None:
+  """The zoo.json of the entry ``run`` (a zoo name or an entry's directory), None for other runs."""
+  path = Path(resolve(str(run)) if str(run).startswith(PREFIX) else run) / "zoo.json"
+  try:
+    info = json.loads(path.read_text())
+  except (OSError, ValueError):
+    return None
+  return info if isinstance(info, dict) else None
+
+
+def recorded_hash(info: dict, seed: int) -> str | None:
+  """The content hash zoo.json records for seed ``seed`` of its entry (None if it records none)."""
+  for s in info.get("slim") or []:
+    if isinstance(s, dict) and s.get("seed") == seed and isinstance(s.get("sha256"), str):
+      return s["sha256"]
+  hashes = info.get("seed_sha256")
+  return hashes[seed] if isinstance(hashes, list) and 0 <= seed < len(hashes) and isinstance(hashes[seed], str) else None
+
+
+def recorded_low_hash(high) -> str | None:
+  """The content hash of the LL seed that the HL entry ``high`` composes with, as its zoo.json records."""
+  h = (info_of(high) or {}).get("low_sha256")
+  return h if isinstance(h, str) else None
 
 
 def entries() -> list[dict]:
@@ -69,47 +116,66 @@ def _plain(x):
 
 
 def _check(entry: str, low: str | None, task: str, task_kw: dict) -> dict:
-  """The check of zoo:``entry``: its episodes, key and result."""
-  result = _evaluate(PREFIX + entry, low, task, CHECK_EPISODES, CHECK_KEY, **task_kw)
+  """The check of ``entry`` (zoo:NAME, or an entry's directory): its episodes, key and result."""
+  result = _evaluate(entry, low, task, CHECK_EPISODES, CHECK_KEY, **task_kw)
   return dict(episodes=CHECK_EPISODES, key=CHECK_KEY, result=result)
 
 
 def _numbers(entry: str, low: str | None, task: str, episodes: int, task_kw: dict) -> tuple[dict, dict]:
-  """(evaluation over ``episodes`` per seed, the check) of zoo:``entry``."""
-  return _evaluate(PREFIX + entry, low, task, episodes, 1234, **task_kw), _check(entry, low, task, task_kw)
+  """(evaluation over ``episodes`` per seed, the check) of ``entry`` (zoo:NAME or a directory)."""
+  return _evaluate(entry, low, task, episodes, 1234, **task_kw), _check(entry, low, task, task_kw)
 
 
 def export(run: str | Path, name: str, command: str, low: str | None = None, task: str | None = None,
            episodes: int = 100, overwrite: bool = False, **task_kw) -> Path:
   """Copies the policy of ``run`` into ``zoo/NAME`` and records its numbers. An HL needs ``low`` (a zoo
-  name, which its metadata then points to) and is evaluated on ``task`` (default: its own)."""
+  name, which its metadata then points to) and is evaluated on ``task`` (default: its own). Every
+  argument is checked before anything is written; the entry is built in a hidden directory and moved
+  into place in one rename (hdt.transfer.rundir.install), so a failed export leaves no trace."""
+  from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import rundir
+  check_name(name)
+  if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes <= 0:
+    raise ZooError(f"episodes={episodes!r}: the evaluation recorded with the entry needs a positive number of "
+                   f"episodes per seed, e.g. 100")
   run = Path(resolve(str(run)))
-  meta = json.loads((run / "meta.json").read_text())
-  if meta.get("level") == "high" and not (low and low.startswith(PREFIX)):
-    raise ZooError(f"{run} is a high level: export its LL first and pass low='zoo:NAME'")
+  meta = ckpt.load_meta(run)  # a readable checkpoint of this hdt's format
+  if meta.get("level") == "high":
+    if not (isinstance(low, str) and low.startswith(PREFIX)):
+      raise ZooError(f"{run} is a high level: export its LL first and pass low='zoo:NAME'")
+    resolve(low)
   dest = ZOO_DIR / name
   if dest.exists() and not overwrite:
     raise ZooError(f"zoo entry {name!r} exists; pass overwrite=True (--overwrite) to replace it")
+  rundir.check_claimable(dest, overwrite=overwrite, what="name", reads={"exported": run}, zoo_ok=True)
   task = task or meta["task"]
-  tmp = dest.with_name("." + dest.name + ".tmp")
-  shutil.rmtree(tmp, ignore_errors=True)
-  shutil.copytree(run, tmp, ignore=shutil.ignore_patterns("state", "state.old", "tb", "report", "metrics.csv", ".*"))
-  if low:  # the HL's hand-off metadata names the zoo LL, not a local run directory
-    for mp in [tmp / "meta.json", *tmp.glob("seed_*/meta.json")]:
-      m = json.loads(mp.read_text())
-      if isinstance(m.get("low"), dict):
-        m["low"]["path"] = low
-        mp.write_text(json.dumps(m, indent=1))
-  slimmed = _slim(tmp, meta["level"])
-  tmp_name = str(tmp.relative_to(ZOO_DIR))
-  (tmp / "zoo.json").write_text("{}")  # so that zoo:<tmp> resolves during the evaluations below
+  parent_existed = dest.parent.exists()
+  atomic.make_dirs(dest.parent)
+  tmp = atomic.temp_dir(dest.parent, dest.name)
   try:
-    full, check = _numbers(tmp_name, low, task, episodes, task_kw)
-    _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check, slimmed)
+    shutil.copytree(run, tmp, dirs_exist_ok=True,
+                    ignore=shutil.ignore_patterns("state", "state.old", "tb", "report", "metrics.csv", ".*"))
+    low_hash = None
+    if low:  # the HL's hand-off metadata names the zoo LL (and its hash), not a local run directory
+      seed = int((meta.get("low") or {}).get("seed_index", 0))
+      low_hash = ckpt.content_hash(low, seed)
+      for mp in [tmp / "meta.json", *tmp.glob("seed_*/meta.json")]:
+        m = json.loads(mp.read_text())
+        if isinstance(m.get("low"), dict):
+          m["low"] = dict(m["low"], path=low, sha256=m["low"].get("sha256") or low_hash)
+          ckpt.write_json_atomic(mp, m)
+    slimmed = _slim(tmp, meta["level"])
+    _record_hashes(tmp, slimmed)
+    (tmp / "zoo.json").write_text("{}")  # an entry for the evaluations below (as ckpt.load sees it)
+    full, check = _numbers(str(tmp), low, task, episodes, task_kw)
+    _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash)
+    return rundir.install(tmp, dest, overwrite=overwrite, reads={"exported": run}, zoo_ok=True, what="name")
   except BaseException:
-    shutil.rmtree(tmp, ignore_errors=True)  # nothing half-written is left in zoo/
+    atomic.remove(tmp)  # nothing half-written is left in zoo/
+    if not parent_existed:
+      with contextlib.suppress(OSError):
+        dest.parent.rmdir()
     raise
-  return dest
 
 
 POLICY_KEYS = ("policy", normalizer.KEY)  # what an LL entry keeps, and an HL entry of its best (the KL reference)
@@ -146,7 +212,7 @@ def reslim(name: str) -> dict:
   LL had, so HLs trained over any earlier copy still compose with it. Returns the new zoo.json; an LL
   entry's numbers must then be re-recorded (:func:`reevaluate`), as its default parameters changed."""
   from hdt.transfer import checkpoint as ckpt
-  entry, path = ZOO_DIR / name, ZOO_DIR / name / "zoo.json"
+  entry, path = ZOO_DIR / check_name(name), ZOO_DIR / name / "zoo.json"
   info = json.loads(path.read_text())
   old = {s["seed"]: s for s in info.get("slim") or []}
   new = _slim(entry, info["level"])
@@ -157,8 +223,19 @@ def reslim(name: str) -> dict:
       s["source_sha256"] = prev.get("source_sha256", s["source_sha256"])
       s["earlier_sha256"] = sorted(set(earlier) - {s["source_sha256"], s["sha256"]})
     info["slim"] = new
+  info["seed_sha256"] = [s["sha256"] for s in new]
+  _record_hashes(entry, new)
   ckpt.write_json_atomic(path, info)
   return info
+
+
+def _record_hashes(entry: Path, hashes: list[dict]) -> None:
+  """The entry's meta.json lists its seeds' content hashes as they are now (``hashes``: _slim's)."""
+  from hdt.transfer import checkpoint as ckpt
+  path = entry / "meta.json"
+  meta = json.loads(path.read_text())
+  meta[ckpt.SEED_HASHES] = [s["sha256"] for s in sorted(hashes, key=lambda s: s["seed"])]
+  ckpt.write_json_atomic(path, meta)
 
 
 def hash_aliases(low, seed: int) -> set[str]:
@@ -173,21 +250,20 @@ def hash_aliases(low, seed: int) -> set[str]:
                   for h in [s["source_sha256"], *s.get("earlier_sha256", [])]}
 
 
-def _write_entry(tmp, dest, meta, name, task, task_kw, low, command, full, check, slimmed=None):
+def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash=None):
   sac = meta.get("sac", {})
   info = dict(name=name, level=meta["level"], agent=meta["agent"], task=task, task_options=task_kw,
               low=low, command=command,
               budget=dict(total=sac.get("total_env_steps"),
                           unit="HL decisions" if meta["level"] == "high" else "env steps"),
               seeds=meta.get("seeds"), evaluation=full, check=check,
-              hdt_version=hdt.__version__, exported=datetime.date.today().isoformat())
+              hdt_version=hdt.__version__, exported=datetime.date.today().isoformat(),
+              seed_sha256=[s["sha256"] for s in sorted(slimmed, key=lambda s: s["seed"])])
   if meta["level"] == "low":
     info["slim"] = slimmed
-  (tmp / "zoo.json").write_text(json.dumps(info, indent=1))
-  if dest.exists():
-    shutil.rmtree(dest)
-  dest.parent.mkdir(parents=True, exist_ok=True)
-  tmp.rename(dest)
+  if low_hash is not None:
+    info["low_sha256"] = low_hash
+  atomic.write_text(tmp / "zoo.json", json.dumps(info, indent=1))
 
 
 def reevaluate(name: str, reason: str, episodes: int = 100, check_only: bool = False) -> dict:
@@ -195,22 +271,23 @@ def reevaluate(name: str, reason: str, episodes: int = 100, check_only: bool = F
   the previous numbers under ``reevaluated``; ``check_only``: the check alone (e.g. after a change of
   ``CHECK_EPISODES``). Returns the new zoo.json."""
   from hdt.transfer import checkpoint as ckpt
-  path = ZOO_DIR / name / "zoo.json"
+  path = ZOO_DIR / check_name(name) / "zoo.json"
   info = json.loads(path.read_text())
   old = {k: info[k] for k in (("check",) if check_only else ("evaluation", "check"))}
   info["reevaluated"] = info.get("reevaluated", []) + [dict(date=datetime.date.today().isoformat(), reason=reason,
                                                             hdt_version=hdt.__version__, previous=old)]
   if check_only:
-    info["check"] = _check(name, info["low"], info["task"], info["task_options"])
+    info["check"] = _check(PREFIX + name, info["low"], info["task"], info["task_options"])
   else:
-    info["evaluation"], info["check"] = _numbers(name, info["low"], info["task"], episodes, info["task_options"])
+    info["evaluation"], info["check"] = _numbers(PREFIX + name, info["low"], info["task"], episodes,
+                                                 info["task_options"])
   ckpt.write_json_atomic(path, info)
   return info
 
 
 def recheck(name: str) -> tuple[dict, dict]:
   """(recorded, fresh) results of the entry's deterministic check evaluation."""
-  info = json.loads((ZOO_DIR / name / "zoo.json").read_text())
+  info = json.loads((ZOO_DIR / check_name(name) / "zoo.json").read_text())
   c = info["check"]
   fresh = _evaluate(PREFIX + name, info["low"], info["task"], c["episodes"], c["key"], **info["task_options"])
   return c["result"], fresh
