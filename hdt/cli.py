@@ -19,22 +19,46 @@ Every sub-command takes --seeds N, --preset smoke|cpu|paper, --out DIR and --qui
 
 from __future__ import annotations
 
+import os
+import signal
+import sys
+
+# As the `hdt` command this module loads first: a Ctrl-C while it and its imports load is held and
+# reported by main() (elsewhere it is a traceback from an import).
+_EARLY_SIGINT: list = []
+if os.path.basename(sys.argv[0] if sys.argv else "") == "hdt":
+  signal.signal(signal.SIGINT, lambda *a: _EARLY_SIGINT.append(a))
+
 import argparse
 import ast
 import dataclasses
 import importlib.util
 import itertools
 import json
-import sys
 import time
 import typing
 from pathlib import Path
 
-from hdt.agents.discriminator import DiscConfig
-from hdt.agents.sac import SACConfig
-from hdt.transfer import configs
+# JAX, MuJoCo and hdt's modules take seconds to import: main() imports them (_import_hdt) once it
+# handles Ctrl-C, so that an interrupt in the first instant exits cleanly too.
+DiscConfig = SACConfig = configs = None
 
-PRESETS = tuple(configs.PRESETS)
+
+def _import_hdt() -> None:
+  global DiscConfig, SACConfig, configs
+  if configs is None:
+    from hdt.agents.discriminator import DiscConfig
+    from hdt.agents.sac import SACConfig
+    from hdt.transfer import configs
+
+
+def __getattr__(name):
+  if name == "PRESETS":  # the --preset choices: hdt.transfer.configs.PRESETS
+    _import_hdt()
+    return tuple(configs.PRESETS)
+  raise AttributeError(name)
+
+
 REPO = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6")
 AGENT_HELP = ("point, ant, ant3, ant2, quadruped, arm_point, arm2, arm3, arm4, or the path of a robot "
@@ -136,7 +160,7 @@ def _out_arg(text: str) -> Path:
 def _common(p, out_help="run directory (default: runs/<what>)"):
   p.add_argument("--seeds", type=int, default=None, help="number of seeds, vmapped in one process "
                  "(default: 1 for training, all seeds of a run for eval)")
-  p.add_argument("--preset", choices=PRESETS, default="cpu",
+  p.add_argument("--preset", choices=tuple(configs.PRESETS), default="cpu",
                  help="budget: smoke (seconds), cpu (this machine, minutes), paper (the authors' setup and "
                       "budgets). Budgets (--total-env-steps) count LL env steps for LLs and Full, HL "
                       f"decisions for HLs (the paper's units); paper: {configs.describe_paper_budgets()} "
@@ -169,6 +193,7 @@ def _low_params(p):
 
 
 def build_parser() -> argparse.ArgumentParser:
+  _import_hdt()
   p = _Parser(prog="hdt", description=__doc__, formatter_class=_Help)
   sub = p.add_subparsers(dest="cmd", required=True, metavar="COMMAND", parser_class=_Parser)
   fmt = _Help
@@ -312,15 +337,17 @@ def _seeds(args, default=1) -> int:
   return n
 
 
-def _out_dir(args, name: str, kind: str = "run", reuse: bool = False) -> Path:
-  """--out (default runs/<name>), checked before anything is loaded or compiled (hdt.transfer.rundir)."""
+def _out_dir(args, name: str, kind: str = "run", reuse: bool = False, reads=(), legacy=None) -> Path:
+  """--out (default runs/<name>), checked before anything is loaded or compiled (hdt.transfer.rundir);
+  ``reads``: {option: run} of the runs the command reads, which it never writes over."""
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import rundir
   out = args.out if args.out is not None else Path("runs") / name
   resume, overwrite = getattr(args, "resume", False), getattr(args, "overwrite", False)
   if resume and overwrite:
     raise CLIError("--resume continues the run in --out, --overwrite replaces it: pass one of them")
-  rundir.check_claimable(out, kind, resume=resume, overwrite=overwrite, reuse=reuse, what="--out")
+  rundir.check_claimable(out, kind, resume=resume, overwrite=overwrite, reuse=reuse, what="--out",
+                         reads={f"--{k}": v for k, v in dict(reads).items()}, legacy=legacy)
   if resume and not ckpt.has_state(out):
     raise CLIError(f"--resume: {out} holds no saved training state to continue (a run killed before its first "
                    f"save); start it again with --overwrite, or pass the run's --out")
@@ -335,6 +362,7 @@ def sac_config(args, level: str, agent=None, task=None, **extra) -> SACConfig:
   """The SACConfig a parsed training command (``build_parser().parse_args(...)``) asks for: the
   ``--preset``'s config of ``level`` for ``agent`` / ``task``, with ``extra`` and the command's
   SAC options applied."""
+  _import_hdt()
   return configs.config(level, args.preset, agent=agent, task=task, **(extra | _overrides(args, SACConfig, "")))
 
 
@@ -387,7 +415,7 @@ def cmd_train(args) -> int:
       raise CLIError(f"--k {args.k}: give a positive number of LL steps per HL action")
     overrides = configs.task_options(args.preset, args.task) | overrides
     cfg = sac_config(args, "high", task=args.task)
-    out = _out_dir(args, f"high-{args.task}-{_label(low_meta['agent'])}")
+    out = _out_dir(args, f"high-{args.task}-{_label(low_meta['agent'])}", reads={"low": args.low})
     res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
                               low_seed=args.low_seed, k=args.k, quiet=args.quiet, low_params=args.low_params,
                               **_run_kw(args), **overrides)
@@ -409,7 +437,8 @@ def cmd_align(args) -> int:
   check_env_overrides(_key_values(args.set, "--set"), args.agent, "reach")
   disc = _disc(args, imitate_meta["agent"])
   cfg = sac_config(args, "low", args.agent)
-  out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate_meta['agent'])}")
+  out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate_meta['agent'])}",
+                 reads={"imitate": args.imitate})
   res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
                   backend=args.backend, quiet=args.quiet, imitate_params=args.imitate_params,
                   **_run_kw(args), **_key_values(args.set, "--set"))
@@ -423,19 +452,24 @@ def _a_sac(a_meta: dict) -> dict:
 
 def cmd_finetune(args) -> int:
   from hdt.transfer import checkpoint as ckpt
-  from hdt.transfer.finetune import finetune_high
+  from hdt.transfer.finetune import check_anneal_frac, finetune_high
   _check_agent_task(task=args.task)
+  check_anneal_frac(args.anneal_frac)
   from hdt.transfer.pipeline import check_env_overrides, load_low
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
-  hm = ckpt.require(ckpt.load_meta(args.high), {"agent": str, "hidden_sizes": list}, args.high)
+  from hdt.transfer.card import PolicyCard
+  hm = ckpt.load_meta(args.high)
+  PolicyCard.from_json(hm, args.high)  # every field of its type, before its hidden sizes are used
   lm = load_low(args.low, args.low_seed)[1]
   cfg = sac_config(args, "finetune", task=args.task, **_a_sac(hm))  # the task's finetuning lr unless set
   kl = configs.finetune_params(args.task)["kl"] if args.kl is None else args.kl  # the paper's beta of the task
-  out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{kl:g}")
+  out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{kl:g}",
+                 reads={"high": args.high, "low": args.low})
   res = finetune_high(args.high, args.low, args.task, kl=kl, config=cfg, seeds=_seeds(args), out=out,
                       anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
                       backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
                       low_params=args.low_params, reference_params=args.reference_params,
+                      learning_starts=None if args.learning_starts is not None else 0,  # the authors': 0
                       **_run_kw(args),
                       **(configs.task_options(args.preset, args.task) | _key_values(args.set, "--set")))
   return _finish(res, args)
@@ -450,7 +484,11 @@ def named_runs(items) -> dict[str, Path]:
     name, sep, run = it.partition("=")
     if not sep or Path(it).exists() or "/" in name:
       name, run = "", it
-    out[name or Path(run).name] = Path(run)
+    name = name or Path(run).name
+    if name in out:
+      raise CLIError(f"two runs are named {name!r} ({out[name]} and {run}): name each once, e.g. "
+                     f"--high {name}_a={out[name]} --high {name}_b={run}")
+    out[name] = Path(run)
   return out
 
 
@@ -464,10 +502,13 @@ def cmd_eval(args) -> int:
   from hdt.transfer.pipeline import check_env_overrides
   overrides = _key_values(args.set, "--set")
   check_env_overrides(overrides, task=args.task)
-  out = _out_dir(args, "eval", kind="eval", reuse=True)  # evaluations add files to an eval directory
   if args.episodes <= 0:
     raise CLIError(f"--episodes {args.episodes}: give a positive number of episodes")
   highs, lows = named_runs(args.high), named_runs(args.low)
+  named = lambda opt, runs: {opt + ("" if len(runs) == 1 else f" {k}"): v for k, v in runs.items()}
+  reads = named("high", highs) | named("low", lows)
+  out = _out_dir(args, "eval", kind="eval", reuse=True,  # evaluations add files to an eval directory
+                 reads=reads | ({"policy": args.policy} if args.policy is not None else {}))
   if args.policy is not None:
     if highs or lows:
       raise CLIError("--policy evaluates a flat policy: do not combine it with --high/--low")
@@ -537,6 +578,7 @@ def _grid_value(name: str, text: str, field: dataclasses.Field):
 
 
 def cmd_sweep(args) -> int:
+  from hdt import atomic
   from hdt.report import markdown_table
   from hdt.transfer import pipeline, rundir
   fields = {f.name: f for f in dataclasses.fields(SACConfig)}
@@ -552,6 +594,9 @@ def cmd_sweep(args) -> int:
     if name in grid:
       raise CLIError(f"--grid {name} is given twice: list all its values once, {name}=V1,V2,...")
     grid[name] = [_grid_value(name, v, fields.get(name)) for v in values.split(",")]
+    twice = [v for i, v in enumerate(grid[name]) if v in grid[name][:i]]
+    if twice:
+      raise CLIError(f"--grid {name}={values} lists the value {twice[0]!r} twice: give each value once")
   if not grid:
     raise CLIError("give at least one --grid FIELD=V1,V2")
   both = sorted(set(grid) & set(_overrides(args, SACConfig, "")))
@@ -566,12 +611,16 @@ def cmd_sweep(args) -> int:
     raise CLIError(f"sweep {args.level} needs --low RUN")
   if args.level == "finetune" and not args.high:
     raise CLIError("sweep finetune needs --high RUN (A's HL)")
+  if args.level == "finetune":
+    from hdt.transfer.finetune import check_anneal_frac
+    check_anneal_frac(args.anneal_frac)
   if args.level == "align" and not args.imitate:
     raise CLIError("sweep align needs --imitate RUN (A's LL)")
   _check_agent_task(args.agent, args.task)
   overrides = _key_values(args.set, "--set")
   pipeline.check_env_overrides(overrides, args.agent, args.task or "reach")
-  root = _out_dir(args, f"sweep-{args.level}", kind="sweep")
+  reads = {k: getattr(args, k) for k in ("low", "high", "imitate") if getattr(args, k) is not None}
+  root = _out_dir(args, f"sweep-{args.level}", kind="sweep", reads=reads)
   seeds = _seeds(args)
   if args.level in ("high", "finetune"):
     pipeline.load_low(args.low, args.low_seed)  # checked to be a usable LL before anything is written
@@ -580,10 +629,10 @@ def cmd_sweep(args) -> int:
     load_high(args.high)  # checked to be an HL
   disc = {"disc": _disc(args, pipeline.load_low(args.imitate)[1]["agent"])} if args.level == "align" else {}
   pipeline.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], disc)
-  with rundir.claim(root, "sweep", overwrite=args.overwrite):
+  with rundir.claim(root, "sweep", overwrite=args.overwrite, reads=reads):
     rows = _sweep(args, grid, root, seeds, overrides, disc)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
-    (root / "sweep.md").write_text(table + "\n")
+    atomic.write_text(root / "sweep.md", table + "\n")
   print(table)
   return 0
 
@@ -647,22 +696,24 @@ def update_results_md(path: Path, key: str, text: str) -> None:
     new = old[:old.index(start)] + block + old[old.index(end) + len(end):]
   else:
     new = old.rstrip() + "\n\n" + block + "\n"
-  tmp = path.with_name("." + path.name + ".tmp")
-  tmp.write_text(new)
-  tmp.replace(path)
+  from hdt import atomic
+  atomic.write_text(path, new)
 
 
 def cmd_reproduce(args) -> int:
+  from hdt.transfer import rundir
+  legacy = lambda path: rundir.holds_only_runs(path, lambda name: name.startswith(f"{args.name}_"))
+  out = _out_dir(args, f"{args.name}-{args.preset}", kind="experiment", reuse=True, legacy=legacy)
   mod = load_experiment(args.name)
   if args.preset not in mod.PRESETS:
     raise CLIError(f"{args.name} has no preset {args.preset!r}; presets: {', '.join(mod.PRESETS)}")
-  out = args.out or Path("runs") / f"{args.name}-{args.preset}"
   t0 = time.time()
-  result = mod.run(args.preset, out, seeds=args.seeds, quiet=args.quiet)
-  text = mod.markdown(result)
-  print(text)
-  from experiments.common import publish  # importable: load_experiment put the checkout on sys.path
-  written = publish(args.name, args.preset, out, text)
+  from experiments.common import claim_out, publish  # importable: load_experiment put the checkout on sys.path
+  with claim_out(out, args.name):  # the runs, tables and figures
+    result = mod.run(args.preset, out, seeds=args.seeds, quiet=args.quiet)
+    text = mod.markdown(result)
+    print(text)
+    written = publish(args.name, args.preset, out, text)
   print(f"\n{args.name} ({args.preset}) took {(time.time() - t0) / 60:.1f} min; runs and results in {out}: "
         + ", ".join(p.name for p in written))
   if args.preset != "smoke" and not args.no_results_md:
@@ -678,6 +729,9 @@ def cmd_zoo(args) -> int:
     return 0
   if not args.run or not args.name:
     raise CLIError("hdt zoo export needs RUN and --name NAME, e.g. hdt zoo export runs/pm_low --name point/low")
+  zoo.check_name(args.name)
+  if args.episodes <= 0:
+    raise CLIError(f"--episodes {args.episodes}: the entry's evaluation needs a positive number of episodes")
   dest = zoo.export(args.run, args.name, args.command, low=args.low, task=args.task, episodes=args.episodes,
                     overwrite=args.overwrite, **_key_values(args.set, "--set"))
   print(f"exported {args.run} to {dest} (zoo:{args.name})")
@@ -717,6 +771,7 @@ QUICKSTART_TRANSFERS = (  # task, HL (named after its run), HL run, LL run, rand
 def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   import json
 
+  from hdt import atomic
   from hdt.report import fmt, markdown_table, run_report
   from hdt.transfer import zoo
   from hdt.transfer.evaluate import compose, evaluate, random_actions
@@ -751,7 +806,7 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   print(f"\n2. Transfer, HL of agent A over the LL of agent B (zoo policies trained at paper-scale budgets "
         f"here, see `hdt zoo`), {episodes} episodes per seed:\n")
   print(markdown_table(["task", "metric", "HL", "LL", "hdt", "paper"], rows))
-  (root / "quickstart.json").write_text(json.dumps(dict(own=dict(return_mean=own["return_mean"],
+  atomic.write_text(root / "quickstart.json", json.dumps(dict(own=dict(return_mean=own["return_mean"],
                                                                 return_std=own["return_std"]),
                                                         transfer=table), indent=1))
   rep = run_report(high.run_dir)
@@ -819,54 +874,123 @@ def _one_line(e: BaseException) -> str:
   return " ".join(str(e).split()) or type(e).__name__
 
 
+def _last_run():
+  """The run directory this process claimed last, if hdt's modules got that far."""
+  rundir = sys.modules.get("hdt.transfer.rundir")
+  return rundir.LAST_CLAIMED[-1] if rundir is not None and rundir.LAST_CLAIMED else None
+
+
+def _resume_hint() -> str:
+  """Where the run stands and how to continue it (after Ctrl-C or a failed write)."""
+  run = _last_run()
+  ckpt = sys.modules.get("hdt.transfer.checkpoint")
+  if run is not None and ckpt is not None and ckpt.has_state(run):
+    try:
+      steps = ckpt.load_state_info(run).get("env_steps", "?")
+    except (ValueError, OSError):
+      steps = "?"
+    return f"{run} keeps its last saved training state ({steps} env steps): run the same command with --resume to continue"
+  if run is not None and run.exists():
+    return f"{run} holds no saved training state yet: run the same command with --overwrite to start again"
+  return "nothing was written"
+
+
 def _interrupted() -> str:
-  """The Ctrl-C message: where the run stands and how to continue it."""
-  from hdt.transfer import checkpoint as ckpt
-  from hdt.transfer import rundir
-  run = rundir.LAST_CLAIMED[-1] if rundir.LAST_CLAIMED else None
-  if run is not None and ckpt.has_state(run):
-    return (f"interrupted; {run} keeps its last saved training state "
-            f"({ckpt.load_state_info(run).get('env_steps', '?')} env steps): run the same command with "
-            f"--resume to continue")
-  if run is not None:
-    return f"interrupted before {run} saved any training state: run the same command with --overwrite to start again"
-  return "interrupted; nothing was written"
+  """The Ctrl-C message."""
+  hint = _resume_hint()
+  return f"interrupted; {hint}" if hint != "nothing was written" else "interrupted; nothing was written"
+
+
+def _os_error(e: OSError) -> str:
+  """One line for a failed read or write: what, where, and the fix."""
+  import errno
+  where = e.filename or "the file system"
+  hint = _resume_hint()
+  elsewhere = "" if "--resume" in hint else " or pass an --out on another disk"
+  fix = {errno.ENOSPC: f"no space left on the device of {where}: free space there{elsewhere}",
+         errno.EDQUOT: f"disk quota exceeded writing {where}: free space{elsewhere}",
+         errno.EROFS: f"{where} is on a read-only file system: pass an --out you can write to",
+         errno.EACCES: f"permission denied: {where}: pass a path you can write to (or read, for an input)",
+         errno.EPERM: f"operation not permitted: {where}: pass a path you own"}.get(e.errno)
+  text = fix or f"{e.strerror or e} ({where}); check the path and free space"
+  return text + ("" if hint == "nothing was written" else f"; {hint}")
+
+
+def _message(e: BaseException) -> tuple[str, int]:
+  """(the one line printed for ``e``, exit status)."""
+  rundir = sys.modules.get("hdt.transfer.rundir")
+  ckpt = sys.modules.get("hdt.transfer.checkpoint")
+  if isinstance(e, CLIError) or (rundir is not None and isinstance(e, rundir.RunDirError)):
+    return f"error: {_one_line(e)}", 2
+  if isinstance(e, (FileNotFoundError, ValueError, FloatingPointError)) or (
+      ckpt is not None and isinstance(e, ckpt.CheckpointError)):
+    return f"hdt: error: {_one_line(e)}", 1
+  if isinstance(e, MemoryError) or (type(e).__name__ == "JaxRuntimeError" and "RESOURCE_EXHAUSTED" in str(e)):
+    return "hdt: error: out of memory; lower --seeds, --episodes, --buffer-size, --num-envs or --hidden-sizes", 1
+  if isinstance(e, OSError):
+    return f"hdt: error: {_os_error(e)}", 1
+  return (f"hdt: internal error: {type(e).__name__}: {_one_line(e)} (please report it; HDT_DEBUG=1 shows "
+          f"the traceback)"), 1
+
+
+def _run(argv) -> int:
+  from hdt import interrupt
+  with interrupt.deferred():  # a KeyboardInterrupt inside an extension module's import can crash it later
+    _import_hdt()
+    import hdt.transfer.evaluate  # noqa: F401 (with pipeline, checkpoint, zoo: what every command loads)
+    from hdt.agents.sharding import initialize_distributed, use_cpu_cores
+    from hdt.cache import enable_compile_cache
+  args = build_parser().parse_args(argv)
+  use_cpu_cores()  # vmapped seeds on all CPU cores (before any JAX operation)
+  initialize_distributed()  # no-op unless HDT_DISTRIBUTED=1 (one process per host)
+  enable_compile_cache()  # a re-run of the same configuration loads its programs
+  code = COMMANDS[args.cmd](args)
+  interrupt.raise_if_interrupted()  # a Ctrl-C that a library swallowed is not lost
+  return code
+
+
+def _exit_quietly(code: int) -> None:
+  """Ends a failed command without the tracebacks that orbax's and asyncio's threads and finalizers
+  print while the interpreter shuts down: the one line was already printed."""
+  import logging
+  import threading
+  sys.unraisablehook = lambda *a: None
+  threading.excepthook = lambda *a: None
+  for name in ("absl", "asyncio"):
+    logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+  sys.stdout.flush()
+  sys.stderr.flush()
+  os._exit(code)
 
 
 def main(argv=None) -> int:
-  from hdt.transfer.checkpoint import CheckpointError
-  from hdt.transfer.rundir import RunDirError
-  from hdt.agents.sharding import initialize_distributed, use_cpu_cores
-  from hdt.cache import enable_compile_cache
+  """The ``hdt`` command; ``argv`` None: ``sys.argv``, and the process exits quietly on failure."""
+  from hdt import interrupt
+  interrupt.catch(bool(_EARLY_SIGINT))  # before the seconds of importing JAX: Ctrl-C is handled from the first instant
   try:
-    args = build_parser().parse_args(argv)
-    use_cpu_cores()  # vmapped seeds on all CPU cores (before any JAX operation)
-    initialize_distributed()  # no-op unless HDT_DISTRIBUTED=1 (one process per host)
-    enable_compile_cache()  # a re-run of the same configuration loads its programs
-    return COMMANDS[args.cmd](args)
-  except (CLIError, RunDirError) as e:
-    print(f"error: {_one_line(e)}", file=sys.stderr)
-    return 2
-  except (ValueError, CheckpointError, FileNotFoundError, FloatingPointError) as e:
-    print(f"hdt: error: {_one_line(e)}", file=sys.stderr)
-    return 1
-  except KeyboardInterrupt:
-    print(f"hdt: {_interrupted()}", file=sys.stderr)
-    return 130
-  except MemoryError:
-    print("hdt: error: out of memory; lower --seeds, --episodes, --buffer-size or --num-envs", file=sys.stderr)
-    return 1
-  except OSError as e:
-    print(f"hdt: error: {e.strerror or e} ({e.filename or 'file system'}); check the path and free space",
-          file=sys.stderr)
-    return 1
-  except Exception as e:  # a bug: still one line; HDT_DEBUG=1 shows the traceback
-    import os
-    if os.environ.get("HDT_DEBUG"):
-      raise
-    print(f"hdt: internal error: {type(e).__name__}: {_one_line(e)} (please report it; HDT_DEBUG=1 shows "
-          f"the traceback)", file=sys.stderr)
-    return 1
+    try:
+      interrupt.raise_if_interrupted()
+      code = _run(argv)
+    except KeyboardInterrupt:
+      print(f"hdt: {_interrupted()}", file=sys.stderr, flush=True)
+      code = 130
+    except Exception as e:
+      if interrupt.pressed():  # Ctrl-C while a module loaded makes its import fail with another error
+        print(f"hdt: {_interrupted()}", file=sys.stderr, flush=True)
+        return _exit(argv, 130)
+      text, code = _message(e)
+      if os.environ.get("HDT_DEBUG") and text.startswith("hdt: internal error"):  # a bug: show where
+        raise
+      print(text, file=sys.stderr, flush=True)
+  except KeyboardInterrupt:  # a second Ctrl-C while the first was reported
+    code = 130
+  return _exit(argv, code)
+
+
+def _exit(argv, code: int) -> int:
+  if argv is None and code != 0:
+    _exit_quietly(code)
+  return code
 
 
 if __name__ == "__main__":
