@@ -160,6 +160,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hdt.transfer import checkpoint as ckpt  # noqa: E402
+from hdt.transfer import zoo  # noqa: E402
 
 
 def tree_hash(root: Path) -> dict:
@@ -179,8 +180,13 @@ def fakes(tmp_path_factory):
   w = {"w": np.zeros((2,), np.float32)}
   low_meta = pipeline.env_meta(make("point", "reach"), "low", cfg, env_overrides={})
 
-  def run(name, meta, seed_meta=None):
-    ckpt.save(root / name, 0, {"policy": w, "q": w}, dict(seed_meta or meta, seed=0))
+  from hdt.agents import networks as nets
+  policy = nets.make_sac_networks(low_meta["obs_size"], low_meta["action_size"],
+                                  tuple(low_meta["hidden_sizes"])).policy_init(jax.random.PRNGKey(0))
+
+  def run(name, meta, seed_meta=None):  # as hdt writes a run: marker, config.json, seeds, meta.json
+    ckpt.save(root / name, 0, {"policy": policy, "q": w}, dict(seed_meta or meta, seed=0))
+    ckpt.write_json_atomic(root / name / "config.json", dataclasses.asdict(cfg))
     ckpt.write_json_atomic(root / name / "meta.json", dict(meta, seeds=[0]))
 
   run("low", low_meta)
@@ -190,12 +196,28 @@ def fakes(tmp_path_factory):
   run("missing_keys", low_meta, {k: v for k, v in low_meta.items() if k != "hidden_sizes"})
   run("corrupt", low_meta)
   run("mixed", low_meta)
-  ckpt.save(root / "mixed", 1, {"policy": w, "q": w}, dict(low_meta, seed=1))  # a stale seed of an older run
+  ckpt.save(root / "mixed", 1, {"policy": policy, "q": w}, dict(low_meta, seed=1))  # a stale seed of an older run
   (root / "corrupt" / "seed_0" / "meta.json").write_text('{"level": "lo')
   ckpt.save_state(root / "bad_state", w, {}, dict(config=["not", "a", "dict"], seeds=[0], meta=low_meta))
   (root / "foreign").mkdir()
   (root / "foreign" / "notes.txt").write_text("my thesis")
   (root / "afile").write_text("not a directory")
+  # edited cards: k of the wrong type, hidden sizes that are not the saved network's
+  run("k_list", low_meta, low_meta | dict(k=[1, 2]))
+  run("k_str", low_meta, low_meta | dict(k="32"))
+  run("wrong_hidden", low_meta, low_meta | dict(hidden_sizes=[32, 32]))
+  run("garbage_metrics", low_meta)
+  (root / "garbage_metrics" / "metrics.csv").write_bytes(b"\x8f\x00garbage\xff" * 20)
+  run("text_metrics", low_meta)
+  (root / "text_metrics" / "metrics.csv").write_text("seed,kind,env_steps,eval/return\n0,eval,100,abc\n")
+  # the user's own directories, which hdt must never take for its own
+  (root / "user_meta").mkdir()
+  (root / "user_meta" / "meta.json").write_text('{"level": "low", "agent": "point"}')
+  (root / "user_meta" / "notes.txt").write_text("my results")
+  (root / "cache_only" / ".cache.tmp").mkdir(parents=True)
+  (root / "user_tables").mkdir()
+  (root / "user_tables" / "table1_smoke.md").write_text("my own table")
+  (root / "link_to_low").symlink_to(root / "low")
   return root
 
 
@@ -228,7 +250,7 @@ BAD_CLI = {
     "quickstart into a run": (["quickstart", "--out", "{low}"], "holds an hdt run directory where this command writes a quickstart"),
     "eval --out a file": ([*EVAL, "--out", "{afile}"], "is an existing file"),
     "eval --out foreign": ([*EVAL, "--out", "{foreign}"], "not an hdt directory"),
-    "eval --out a run": ([*EVAL, "--out", "{low}"], "holds an hdt run directory where this command writes an eval"),
+    "eval --out a run": ([*EVAL, "--out", "{k0_low}"], "holds an hdt run directory where this command writes an eval"),
     # --set values
     "--set not KEY=VALUE": ([*LOW, *FRESH, "--set", "gear"], "expected KEY=VALUE"),
     "--set text for a number": ([*LOW, *FRESH, "--set", "delta_max=abc"], "delta_max='abc': expected a finite number > 0"),
@@ -244,7 +266,7 @@ BAD_CLI = {
     "zero seeds": ([*LOW, *FRESH, "--seeds", "0"], "--seeds 0"),
     "negative seeds": ([*LOW, *FRESH, "--seeds", "-3"], "--seeds -3"),
     "seeds beyond memory": ([*LOW, *FRESH, "--seeds", "1000000000"], "GiB of memory are available: lower the number of seeds"),
-    "buffer beyond memory": ([*LOW, *FRESH, "--buffer-size", "100000000000", "--batch-size", "16"], "GiB of memory"),
+    "buffer beyond memory": ([*LOW, *FRESH, "--buffer-size", "2000000000", "--batch-size", "16"], "GiB of memory"),
     "episodes beyond memory": ([*EVAL, *FRESH, "--episodes", "1000000000000"], "lower the number of episodes"),
     "zero episodes": ([*EVAL[:-2], *FRESH, "--episodes", "0"], "--episodes 0"),
     "non-numeric batch": ([*LOW, *FRESH, "--batch-size", "many"], "invalid int value: 'many'"),
@@ -302,6 +324,66 @@ BAD_CLI = {
     "sweep without agent": (["sweep", "low", "--grid", "actor_lr=1e-3", *FRESH], "sweep low needs --agent"),
     "sweep high without LL": (["sweep", "high", "--task", "waypoint", "--grid", "actor_lr=1e-3", *FRESH],
                               "sweep high needs --low"),
+    # never destroy an input, a zoo entry or a user's directory (each refusal before anything is written)
+    "--out is the input LL": ([*HIGH, "{low}", "--out", "{low}", "--overwrite"],
+                              "is the --low run {low} this command reads; writing there would destroy"),
+    "--out is the input LL by a link": ([*HIGH, "{link_to_low}", "--out", "{low}", "--overwrite"],
+                                        "is the --low run {low} this command reads"),
+    "--out is the input HL": (["finetune", "--high", "{high}", "--low", "{low}", "--task", "waypoint", "--preset",
+                               "smoke", "--out", "{high}", "--overwrite"], "is the --high run {high} this command reads"),
+    "--out holds the input LL": ([*HIGH, "{low}", "--out", "{fakes}", "--overwrite"], "holds the --low run {low}"),
+    "--out is the imitated LL": (["align", "--agent", "point", "--imitate", "{low}", "--preset", "smoke", "--out",
+                                  "{low}", "--overwrite"], "is the --imitate run"),
+    "--out inside a run": ([*LOW, "--out", "{low}/seed_0/nested"], "lies inside the hdt run directory {low}"),
+    "--out in the zoo": ([*LOW, "--out", "{zoo}/point/low", "--overwrite"], "lies in the model zoo"),
+    "--out a new entry in the zoo": ([*LOW, "--out", "{zoo}/point/mine"], "lies in the model zoo"),
+    "--out a user dir with meta.json": ([*LOW, "--out", "{user_meta}", "--overwrite"],
+                                        "is not an hdt directory and not empty (it holds meta.json, notes.txt)"),
+    "--out holding only .cache.tmp": ([*LOW, "--out", "{cache_only}", "--overwrite"],
+                                      "is not an hdt directory and not empty (it holds .cache.tmp/)"),
+    "--out a link to a run": ([*LOW, "--out", "{link_to_low}", "--overwrite"], "is a symbolic link"),
+    "reproduce into a user dir": (["reproduce", "table1", "--preset", "smoke", "--no-results-md", "--out",
+                                   "{user_tables}"], "is not an hdt directory and not empty (it holds table1_smoke.md)"),
+    "report of a user dir": (["report", "{user_meta}"], "is not an hdt directory"),
+    "report of a zoo entry": (["report", "{zoo}/point/low"], "lies in the model zoo"),
+    "report of garbage bytes": (["report", "{garbage_metrics}"], "metrics.csv is damaged (not CSV text"),
+    "report of a garbage number": (["report", "{text_metrics}"], "metrics.csv is damaged (line 2 has eval/return='abc'"),
+    # zoo names are names
+    "zoo export up the tree": (["zoo", "export", "{low}", "--name", "../../..", "--overwrite", "--episodes", "2"],
+                               "zoo name '../../..': a name is one or two parts"),
+    "zoo export onto a user dir": (["zoo", "export", "{low}", "--name", "../../victim", "--overwrite"], "zoo name"),
+    "zoo export the whole zoo": (["zoo", "export", "{low}", "--name", "point/..", "--overwrite"], "zoo name 'point/..'"),
+    "zoo export an absolute path": (["zoo", "export", "{low}", "--name", "{new}"], "zoo name '/"),
+    "zoo export a third level": (["zoo", "export", "{low}", "--name", "point/low/x"], "zoo name 'point/low/x'"),
+    "zoo export 0 episodes": (["zoo", "export", "{low}", "--name", "t/new_entry", "--episodes", "0"], "--episodes 0"),
+    "zoo export over an entry": (["zoo", "export", "{low}", "--name", "point/low"], "zoo entry 'point/low' exists"),
+    "zoo: outside the zoo": (["eval", "--high", "zoo:../../somewhere", "--low", "{low}", *FRESH],
+                             "zoo name '../../somewhere'"),
+    # ranges, checked before anything is compiled
+    "hidden sizes beyond memory": ([*LOW, *FRESH, "--hidden-sizes", "200000", "200000"],
+                                   "networks [200000, 200000], replay buffer"),
+    "eval episodes beyond memory": ([*LOW, *FRESH, "--num-eval-episodes", "100000000"], "GiB of memory"),
+    "zero envs": ([*LOW, *FRESH, "--num-envs", "0"], "num_envs=0: must be a positive integer"),
+    "budget past int32": ([*LOW, *FRESH, "--total-env-steps", "4294967600"], "must be below 2**31"),
+    "learning starts past the budget": ([*LOW, *FRESH, "--learning-starts", "1000000"],
+                                        "learning_starts=1000000 >= total_env_steps=2000"),
+    "finetune learning starts past the budget": (["finetune", "--high", "{high}", "--low", "{low}", "--task", "waypoint",
+                                                  "--preset", "smoke", *FRESH, "--learning-starts", "400"],
+                                                 "learning_starts=400 >= total_env_steps=400"),
+    "anneal fraction 2": (["finetune", "--high", "{high}", "--low", "{low}", "--task", "waypoint", "--preset", "smoke",
+                           *FRESH, "--anneal-frac", "2"], "anneal_frac=2.0: must be in [0, 1]"),
+    "sweep anneal fraction -1": (["sweep", "finetune", "--high", "{high}", "--low", "{low}", "--task", "waypoint",
+                                  "--grid", "kl_weight=0,1", "--anneal-frac", "-1", *FRESH], "anneal_frac=-1.0"),
+    "grid value twice": ([*SWEEP, *FRESH, "--grid", "actor_lr=1e-3,0.001"], "lists the value 0.001 twice"),
+    "eval names twice": (["eval", "--high", "A={high}", "--high", "A={high}", "--low", "{low}", *FRESH],
+                         "two runs are named 'A'"),
+    # cards checked by type on load
+    "LL meta k a list": ([*HIGH, "{k_list}", *FRESH], "has k=[1, 2] (list)"),
+    "LL meta k a string": ([*HIGH, "{k_str}", *FRESH], "has k='32' (str)"),
+    "LL meta hidden sizes not the network's": ([*HIGH, "{wrong_hidden}", *FRESH],
+                                               "does not match its metadata (hidden_sizes=[32, 32]"),
+    "HL meta k a list": (["finetune", "--high", "{k_list}", "--low", "{low}", "--task", "waypoint", *FRESH],
+                         "has k=[1, 2] (list)"),
 }
 
 
@@ -311,15 +393,19 @@ def test_bad_cli_input_is_one_line_and_changes_nothing(case, fakes, tmp_path, ca
   cwd = tmp_path / "cwd"
   cwd.mkdir()
   monkeypatch.chdir(cwd)  # default --out directories would appear here
-  names = {p.name: str(p) for p in fakes.iterdir()} | {"new": str(tmp_path / "new")}
-  argv = [a.format(**names) for a in argv]
-  before = tree_hash(fakes)
+  names = {p.name: str(p) for p in fakes.iterdir()} | {"new": str(tmp_path / "new"), "fakes": str(fakes),
+                                                      "zoo": str(zoo.ZOO_DIR)}
+  argv, fragment = [a.format(**names) for a in argv], fragment.format(**names)
+  touches_zoo = any("zoo" in a for a in argv)
+  before, zoo_before = tree_hash(fakes), tree_hash(zoo.ZOO_DIR) if touches_zoo else None
   code = main(argv)
   err = capsys.readouterr().err.strip()
   assert code != 0 and fragment in err, err
   assert len(err.splitlines()) == 1 and "Traceback" not in err, err
   assert "internal error" not in err, err  # each case has its own message, not the catch-all
+  assert not ("not an hdt directory" in err and "overwrite" in err), err  # never advice to destroy the user's
   assert tree_hash(fakes) == before
+  assert zoo_before is None or tree_hash(zoo.ZOO_DIR) == zoo_before
   assert not (tmp_path / "new").exists() and not any(cwd.iterdir())
 
 
@@ -347,10 +433,12 @@ def test_cli_resumes_a_state_left_as_state_old(runs, tmp_path, capsys):
 
 def _rewrite_low_path(high: Path, low: Path) -> None:
   """Points a copied HL's recorded LL at a copied LL (same bytes, so the same content hash)."""
-  for path in [high / "meta.json", *high.glob("seed_*/meta.json"), high / "state" / "state.json"]:
+  for path in [*high.glob("seed_*/meta.json"), high / "meta.json", high / "state" / "state.json"]:
     obj = json.loads(path.read_text())
     meta = obj["meta"] if "meta" in obj and path.name == "state.json" else obj
     meta["low"]["path"] = str(low)
+    if path == high / "meta.json":  # the seeds' files changed: record their new hashes
+      meta[ckpt.SEED_HASHES] = [ckpt.content_hash(high, i) for i in range(len(meta["seeds"]))]
     ckpt.write_json_atomic(path, obj)
 
 
@@ -363,6 +451,9 @@ def test_eval_and_resume_refuse_an_hl_whose_ll_changed(runs, tmp_path, capsys):
   assert main(ev) == 0
   seed_meta = low / "seed_0" / "meta.json"  # "retrain" the LL: its checkpoint's bytes change
   ckpt.write_json_atomic(seed_meta, json.loads(seed_meta.read_text()) | {"retrained": True})
+  run_meta = json.loads((low / "meta.json").read_text())  # as a retraining rewrites it: the new hashes
+  ckpt.write_json_atomic(low / "meta.json", run_meta | {ckpt.SEED_HASHES: [ckpt.content_hash(low, i) for i in
+                                                                           range(len(run_meta["seeds"]))]})
   capsys.readouterr()
   assert main(ev) == 1
   err = capsys.readouterr().err.strip()
@@ -373,6 +464,26 @@ def test_eval_and_resume_refuse_an_hl_whose_ll_changed(runs, tmp_path, capsys):
   err = capsys.readouterr().err.strip()
   assert "a checkpoint it depends on changed since it started (low content hash differs" in err, err
   assert tree_hash(high) == before
+
+
+def test_an_hl_that_records_no_ll_hash_is_refused_over_an_ll_whose_seed_was_replaced(runs, tmp_path, capsys):
+  """The LL's own meta.json records its seeds' hashes: an HL composed over it learns that its seed_0 is
+  another run's even when the HL (as runs of older hdt versions) recorded no hash of it."""
+  low, high = tmp_path / "low", tmp_path / "high"
+  shutil.copytree(runs / "low", low)
+  shutil.copytree(runs / "high", high)
+  for path in [*high.glob("seed_*/meta.json"), high / "meta.json"]:  # an HL that recorded no hash of its LL
+    meta = json.loads(path.read_text())
+    meta["low"].pop("sha256")
+    ckpt.write_json_atomic(path, meta)
+  _rewrite_low_path(high, low)
+  shutil.rmtree(low / "seed_0")
+  shutil.copytree(low / "seed_1", low / "seed_0")
+  before = tree_hash(tmp_path)
+  assert main(["eval", "--high", str(high), "--low", str(low), "--episodes", "2", "--out", str(tmp_path / "ev")]) == 1
+  err = capsys.readouterr().err.strip()
+  assert f"the checkpoint {low / 'seed_0'} is not the one {low / 'meta.json'} records (its content hash differs" in err
+  assert len(err.splitlines()) == 1 and tree_hash(tmp_path) == before
 
 
 def test_sweep_sac_options_apply_to_every_grid_point(monkeypatch, tmp_path):
@@ -423,6 +534,43 @@ def test_ctrl_c_exits_130_with_a_resume_hint_and_no_traceback(tmp_path):
   assert len(lines) == 1 and "Traceback" not in rest, rest
   assert lines[0].startswith("hdt: interrupted;") and "--resume" in lines[0] and str(out) in lines[0]
   assert ckpt.has_state(out) and not list(out.glob(".*.tmp")) and "Failed to import" not in rest
+
+
+@pytest.mark.parametrize("after", [0.3, 1.0])
+def test_ctrl_c_in_the_first_seconds_exits_130_and_writes_nothing(tmp_path, after):
+  """While Python still imports JAX (the first seconds) Ctrl-C was lost or a traceback: now it is the
+  same one line and exit 130 (the imports finish first: an import interrupted half way can crash)."""
+  import time
+  out = tmp_path / "run"
+  env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
+                                                      os.environ.get("PYTHONPATH", "")]))
+  p = subprocess.Popen([sys.executable, "-m", "hdt.cli", "train", "low", "--agent", "point", "--out", str(out),
+                        *TINY_LOW], stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
+                       preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+  try:
+    time.sleep(after)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=300)
+  finally:
+    p.kill()
+  assert p.returncode == 130 and err.strip() == "hdt: interrupted; nothing was written", err[-3000:]
+  assert not out.exists()
+
+
+def test_a_corrupt_checkpoint_is_one_line_with_no_library_traceback_at_exit(fakes, tmp_path):
+  """orbax's threads and asyncio loops print tracebacks at interpreter exit after a failed restore:
+  the command ends with its one line."""
+  run = tmp_path / "run"
+  shutil.copytree(fakes / "low", run)
+  for f in (run / "seed_0" / "params").rglob("*"):
+    if f.is_file() and f.parent.name == "d":
+      f.write_bytes(b"\x00garbage" * 8)
+  env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
+                                                      os.environ.get("PYTHONPATH", "")]))
+  out = subprocess.run([sys.executable, "-m", "hdt.cli", "eval", "--policy", str(run), "--episodes", "1", "--out",
+                        str(tmp_path / "ev")], capture_output=True, text=True, env=env, cwd=tmp_path)
+  assert out.returncode == 1 and len(out.stderr.strip().splitlines()) == 1, out.stderr[-3000:]
+  assert out.stderr.startswith("hdt: error: corrupt checkpoint parameters in") and not (tmp_path / "ev").exists()
 
 
 # -- bring your own robot (ROBOTS.md): robots that exist only as an MJCF file ----------------------

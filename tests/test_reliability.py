@@ -7,6 +7,7 @@ a 2-core CPU); the wiring of the public ``resume=`` keyword is checked by the va
 """
 
 import dataclasses
+import errno
 import hashlib
 import json
 import os
@@ -14,6 +15,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import jax
@@ -387,6 +389,7 @@ from hdt.transfer.align import align_low  # noqa: E402
 from hdt.transfer.evaluate import compose, evaluate  # noqa: E402
 from hdt.transfer.finetune import finetune_high  # noqa: E402
 from hdt.transfer.hierarchy import HighLevelEnv  # noqa: E402
+from hdt.transfer import zoo  # noqa: E402
 from hdt.transfer.pipeline import train_full, train_high, train_low  # noqa: E402
 
 PCFG = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=25, batch_size=16,
@@ -405,7 +408,7 @@ def runs(tmp_path_factory):
   metas = dict(point_low=low("point"), arm_low=low("arm3"), point_low_box2=low("point", delta_max=2.0),
                point_high=low("point", level="high", task="waypoint"))
   for name, meta in metas.items():
-    ckpt.save(root / name, 0, {"policy": w, "q": w}, dict(meta, seed=0))
+    ckpt.save(root / name, 0, {"policy": policy_params(meta), "q": w}, dict(meta, seed=0))
   ckpt.save(root / "corrupt", 0, {"policy": w}, metas["point_low"])
   (root / "corrupt" / "seed_0" / "meta.json").write_text('{"level": "lo')  # truncated
   ckpt.save_state(root / "point_state", w, {}, dict(config=dataclasses.asdict(PCFG), seeds=[0],
@@ -414,7 +417,18 @@ def runs(tmp_path_factory):
   (root / "foreign").mkdir()
   (root / "foreign" / "notes.txt").write_text("not hdt's")
   ckpt.save(root / "no_hidden", 0, {"policy": w}, {k: v for k, v in metas["point_low"].items() if k != "hidden_sizes"})
+  (root / "user_meta").mkdir()  # the user's: a meta.json does not make a directory hdt's
+  (root / "user_meta" / "meta.json").write_text('{"level": "low"}')
+  (root / "cache_only" / ".cache.tmp").mkdir(parents=True)
+  (root / "link").symlink_to(root / "point_state")
   return root
+
+
+def policy_params(meta):
+  """Parameters of the policy network a card describes (what a checkpoint of it holds)."""
+  from hdt.agents import networks as nets
+  net = nets.make_sac_networks(meta["obs_size"], meta["action_size"], tuple(meta["hidden_sizes"]))
+  return net.policy_init(jax.random.PRNGKey(0))
 
 
 def _low(runs, **kw):
@@ -516,6 +530,46 @@ BAD_INPUTS = {
                               "has no 'hidden_sizes': the file was edited or damaged"),
     "episodes beyond memory": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), episodes=10**12),
                                "lower the number of episodes"),
+    # the Python API names the argument
+    "fractional hidden size": (lambda r: lambda out: SACConfig(hidden_sizes=(64.7,)),
+                               "hidden_sizes=\\(64.7,\\): give at least one hidden layer, all sizes positive integers"),
+    "bool batch size": (lambda r: lambda out: SACConfig(batch_size=True), "batch_size=True: must be a positive integer"),
+    "learning rate as text": (lambda r: lambda out: SACConfig(actor_lr="3e-4"), "actor_lr='3e-4': must be a number"),
+    "budget past int32": (lambda r: lambda out: SACConfig(total_env_steps=2**32, steps_per_chunk=1024),
+                          "total_env_steps=4294967296: must be below 2\\*\\*31"),
+    "learning starts past the budget": (lambda r: lambda out: configs.low_config("point", total_env_steps=400,
+                                                                                 learning_starts=500),
+                                        "learning_starts=500 >= total_env_steps=400"),
+    "config a dict": (lambda r: lambda out: train_low("point", {}, out=out), "config=\\{\\}: pass a hdt.agents.sac.SACConfig"),
+    "out a number": (lambda r: lambda out: train_low("point", PCFG, out=123), "out=123: give the run directory as a path"),
+    "compose box unknown": (lambda r: lambda out: compose(r / "point_high", r / "point_low", box="bogus"),
+                            "box='bogus': pass 'refuse'"),
+    "anneal fraction 2": (lambda r: lambda out: finetune_high(r / "point_high", r / "point_low", "waypoint",
+                                                              anneal_frac=2, out=out), "anneal_frac=2: must be in \\[0, 1\\]"),
+    "networks beyond memory": (lambda r: lambda out: train_low("point", configs.replace(PCFG, hidden_sizes=(200_000,) * 2),
+                                                                out=out, quiet=True),
+                               "networks \\[200000, 200000\\].*GiB of memory"),
+    "two grid points, one out": (lambda r: lambda out: pipeline.sweep("low", [(PCFG, out), (PCFG, out)], agent="point",
+                                                                      quiet=True),
+                                 "two grid points would write the same directory"),
+    # never an input, another run, the zoo or the user's directory
+    "out is the input LL": (lambda r: lambda out: train_high("waypoint", r / "point_low", out=r / "point_low",
+                                                             overwrite=True), "is the low run .* this command reads"),
+    "out inside a run": (lambda r: lambda out: train_low("point", PCFG, out=r / "point_state" / "state" / "x"),
+                         "lies inside the hdt run directory"),
+    "out in the zoo": (lambda r: lambda out: train_low("point", PCFG, out=zoo.ZOO_DIR / "point" / "low", overwrite=True),
+                       "lies in the model zoo"),
+    "out a user dir with meta.json": (lambda r: lambda out: train_low("point", PCFG, out=r / "user_meta", overwrite=True),
+                                      "is not an hdt directory and not empty \\(it holds meta.json\\)"),
+    "out holding only .cache.tmp": (lambda r: lambda out: train_low("point", PCFG, out=r / "cache_only", overwrite=True),
+                                    "is not an hdt directory and not empty \\(it holds .cache.tmp/\\)"),
+    "out a link to a run": (lambda r: lambda out: train_low("point", PCFG, out=r / "link", overwrite=True),
+                            "is a symbolic link"),
+    "zoo export name a path": (lambda r: lambda out: zoo.export(r / "point_low", "../../victim", "test", overwrite=True),
+                               "zoo name '../../victim'"),
+    "zoo export 0 episodes": (lambda r: lambda out: zoo.export(r / "point_low", "t/x", "test", episodes=0),
+                              "episodes=0: the evaluation recorded with the entry needs a positive number"),
+    "zoo: a path": (lambda r: lambda out: compose("zoo:../../x", r / "point_low"), "zoo name '../../x'"),
 }
 
 
@@ -530,10 +584,12 @@ def test_bad_input_fails_clearly_and_writes_nothing(case, runs, tmp_path):
   make_call, message = BAD_INPUTS[case]
   out = tmp_path / "out"
   before = _snapshot(runs)
+  zoo_before = _snapshot(zoo.ZOO_DIR) if "zoo" in case else None
   with pytest.raises(ValueError, match=message):  # CheckpointError is a ValueError
     make_call(runs)(out)
   assert not out.exists()
   assert _snapshot(runs) == before
+  assert zoo_before is None or _snapshot(zoo.ZOO_DIR) == zoo_before
 
 
 # ------------------------------------------------------------------------------------------------
@@ -541,6 +597,7 @@ def test_bad_input_fails_clearly_and_writes_nothing(case, runs, tmp_path):
 
 import shutil  # noqa: E402
 
+from hdt import interrupt  # noqa: E402
 from hdt.transfer import rundir  # noqa: E402
 
 SMALL = dataclasses.replace(CFG, total_env_steps=200)
@@ -551,13 +608,19 @@ def test_overwrite_replaces_the_whole_run_and_never_mixes_seeds(uninterrupted, t
   shutil.copytree(uninterrupted.run_dir, run)
   assert ckpt.list_seeds(run) == [0, 1] and (run / "tb" / "seed_3").is_dir()
   (run / "seed_1" / "stale.txt").write_text("from the old run")
+  backup = tmp_path / ".run.replaced-backup"  # the user's, named like hdt's temporaries once were
+  backup.mkdir()
+  (backup / "keep.txt").write_text("mine")
+  (tmp_path / ".run.hdt-replaced-mine").mkdir()  # even hdt's naming: without hdt's tag it is not hdt's
+  (tmp_path / ".run.hdt-replaced-mine" / "keep.txt").write_text("mine too")
   with pytest.raises(rundir.RunDirError, match="already holds a run: pass --resume .* --overwrite"):
     train(run, config=SMALL, seeds=[5], plugins=())
   res = train(run, config=SMALL, seeds=[5], plugins=(), overwrite=True)
   assert ckpt.list_seeds(run) == [0] and not (run / "seed_1").exists()
   assert sorted(p.name for p in (run / "tb").iterdir()) == ["seed_5"]
   assert json.loads((run / "meta.json").read_text())["seeds"] == [5]
-  assert not list(tmp_path.glob(".run.replaced-*"))  # the old run is gone, not parked
+  assert sorted(p.name for p in tmp_path.iterdir()) == [".run.hdt-replaced-mine", ".run.replaced-backup", "run"]
+  assert (backup / "keep.txt").read_text() == "mine"  # the old run is gone, and nothing else
   assert_trees_equal(ckpt.load(run, 0)[0]["policy"], jax.tree.map(lambda x: np.asarray(x[0]), res.params["policy"]))
 
 
@@ -571,6 +634,28 @@ def test_directories_hdt_does_not_own_are_refused_even_with_overwrite(tmp_path):
     with pytest.raises(rundir.RunDirError, match=r"not an hdt directory and not empty \(it holds config.json, seed_0/\)"):
       train(foreign, config=SMALL, plugins=(), **kw)
   assert _snapshot(tmp_path) == before
+
+
+def test_directories_written_before_the_marker_are_hdts_only_with_all_of_hdts_files(uninterrupted, tmp_path):
+  old = tmp_path / "old_run"
+  shutil.copytree(uninterrupted.run_dir, old)
+  (old / rundir.MARKER).unlink()  # as written before the marker existed
+  assert rundir.owner_kind(old) == "run"
+  assert rundir.check_claimable(old, overwrite=True) == old
+  for missing in ("config.json", "seed_0", "seed_1", "state"):
+    (shutil.rmtree if (old / missing).is_dir() else os.unlink)(old / missing)
+  assert rundir.owner_kind(old) is None  # meta.json, metrics.csv, tb/ alone: the user's, as far as hdt knows
+  with pytest.raises(rundir.RunDirError, match="is not an hdt directory"):
+    rundir.check_claimable(old, overwrite=True)
+  # an experiment's directory from before the marker: its runs and its own tables, nothing else
+  exp = tmp_path / "table1-smoke"
+  shutil.copytree(uninterrupted.run_dir, exp / "point_low")
+  (exp / "table1_smoke.md").write_text("| table |")
+  legacy = lambda path: rundir.holds_only_runs(path, lambda name: name.startswith("table1_"))
+  assert rundir.check_claimable(exp, "experiment", reuse=True, legacy=legacy) == exp
+  (exp / "notes.txt").write_text("mine")
+  with pytest.raises(rundir.RunDirError, match="is not an hdt directory"):
+    rundir.check_claimable(exp, "experiment", reuse=True, legacy=legacy)
 
 
 _HOLD_LOCK = textwrap.dedent("""
@@ -596,6 +681,12 @@ def test_a_second_writer_is_refused_naming_the_pid_and_a_dead_holder_is_taken_ov
                  "--overwrite"]) == 2
     err = capsys.readouterr().err.strip()
     assert f"in use by PID {p.pid}" in err and len(err.splitlines()) == 1
+    # the directory itself is locked: deleting .hdt-lock does not let a second writer replace the run
+    (run / rundir.LOCK).unlink()
+    before = _snapshot(run)
+    with pytest.raises(rundir.RunDirError, match="is in use by another process, which is writing to it"):
+      train(run, config=SMALL, plugins=(), overwrite=True)
+    assert _snapshot(run) == before
   finally:
     os.kill(p.pid, signal.SIGKILL)
     p.wait(timeout=60)
@@ -640,12 +731,88 @@ def test_ctrl_c_during_a_save_finishes_the_save_first(tmp_path):
   previous = signal.signal(signal.SIGINT, signal.default_int_handler)
   try:
     with pytest.raises(KeyboardInterrupt):
-      with rundir.deferred_interrupt():
+      with interrupt.deferred():
         ckpt.save(run, 0, {"w": np.ones(3, np.float32)}, {"level": "low"})
   finally:
     mp.undo()
     signal.signal(signal.SIGINT, previous)
   assert ckpt.load(run, 0)[1]["level"] == "low"
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002])
+def test_run_files_follow_the_users_umask(tmp_path, umask):
+  """A shared run is readable by whom the umask allows (tempfile alone makes files 0600, dirs 0700)."""
+  previous = os.umask(umask)
+  try:
+    run = tmp_path / "run"
+    with rundir.claim(run):
+      ckpt.save(run, 0, {"w": np.ones(3, np.float32)}, {"level": "low"})
+      ckpt.save_state(run, {"w": np.ones(3, np.float32)}, {}, {})
+      ckpt.write_json_atomic(run / "meta.json", {"seeds": [0]})
+      runner.write_metrics_csv(run / "metrics.csv", {"critic_loss": np.zeros((1, 2))}, [0])
+  finally:
+    os.umask(previous)
+  mode = lambda p: p.stat().st_mode & 0o777
+  for path in (run, run / rundir.MARKER, run / "meta.json", run / "metrics.csv", run / "seed_0",
+               run / "seed_0" / "meta.json", run / "state", run / "state" / "state.json"):
+    assert mode(path) == (0o777 if path.is_dir() else 0o666) & ~umask, (path, oct(mode(path)))
+
+
+@pytest.fixture()
+def small_disk(tmp_path):
+  """A 300 kB tmpfs (root only; skipped elsewhere)."""
+  mnt = tmp_path / "small"
+  mnt.mkdir()
+  if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=300k", "tmpfs", str(mnt)], capture_output=True).returncode:
+    pytest.skip("cannot mount a small tmpfs here (needs root)")
+  yield mnt
+  subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def test_a_full_disk_is_one_line_and_leaves_no_half_written_run(small_disk, tmp_path, capfd):
+  """The first save fails: the error names the path, the run directory it created is removed, and
+  none of orbax's writer-thread tracebacks is printed (API and the command)."""
+  with pytest.raises(OSError) as e:
+    train(small_disk / "run", config=dataclasses.replace(SMALL, hidden_sizes=(256, 256)), plugins=())
+  assert e.value.errno == errno.ENOSPC and str(small_disk / "run" / "state") in e.value.filename
+  assert not any(small_disk.iterdir())
+  assert "Traceback" not in capfd.readouterr().err
+  env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
+                                                      os.environ.get("PYTHONPATH", "")]))
+  out = subprocess.run([sys.executable, "-m", "hdt.cli", "train", "low", "--agent", "point", "--preset", "smoke",
+                        "--quiet", "--out", str(small_disk / "cli")], capture_output=True, text=True, env=env,
+                       cwd=tmp_path)
+  assert out.returncode == 1 and out.stderr.strip().splitlines() == [out.stderr.strip()], out.stderr[-3000:]
+  assert out.stderr.startswith(f"hdt: error: no space left on the device of {small_disk / 'cli' / 'state'}")
+  assert "free space there or pass an --out on another disk" in out.stderr and not any(small_disk.iterdir())
+
+
+def test_a_ctrl_c_a_library_swallowed_still_stops_the_run(tmp_path):
+  """A KeyboardInterrupt raised where it cannot propagate (JAX's gc callback prints "Exception ignored"
+  and goes on) is remembered: the run stops before training, its empty directory removed."""
+  previous = signal.getsignal(signal.SIGINT)
+  interrupt.catch()
+  try:
+    try:
+      os.kill(os.getpid(), signal.SIGINT)
+      time.sleep(1)
+    except KeyboardInterrupt:
+      pass  # swallowed, as a finalizer would
+    with pytest.raises(KeyboardInterrupt):
+      train(tmp_path / "run", config=SMALL, plugins=())
+    assert not (tmp_path / "run").exists()
+  finally:
+    signal.signal(signal.SIGINT, previous)
+    interrupt.catch.__globals__["_PRESSED"].clear()
+
+
+def test_numpy_integers_are_budgets_and_counts():
+  cfg = SACConfig(total_env_steps=np.int64(2000), num_envs=np.int32(4), steps_per_chunk=np.int64(50),
+                  hidden_sizes=np.array([16, 16]), learning_starts=np.uint16(40))
+  assert cfg.total_env_steps == 2000 and type(cfg.total_env_steps) is int and cfg.hidden_sizes == (16, 16)
+  assert type(cfg.num_envs) is int and hash(cfg) == hash(SACConfig(total_env_steps=2000, num_envs=4, steps_per_chunk=50,
+                                                                    hidden_sizes=(16, 16), learning_starts=40))
+  assert configs.low_config("point", total_env_steps=np.int64(4000)).total_env_steps == 4000
 
 
 def test_mujoco_warnings_are_counted_not_printed(capfd):

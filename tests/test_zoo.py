@@ -1,6 +1,8 @@
 """Every zoo entry loads and re-evaluates to its recorded numbers (a change that breaks a checkpoint,
 an env or the evaluation fails here), and zoo:NAME works wherever a run directory does."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -99,13 +101,74 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   after = zoo.reevaluate("t/high", "test", episodes=4)
   assert after["reevaluated"][0]["previous"]["evaluation"] == before["evaluation"] and after["command"] == "test"
   assert not zoo.within_noise(*zoo.recheck("t/high"))
-  # a broken LL checkpoint (its first layer shuffled) is outside noise; its changed files are refused
+  # the HL entry records the LL it composes with; the export of an entry onto itself is refused
+  high_info = json.loads((tmp_path / "zoo/t/high/zoo.json").read_text())
+  assert high_info["low_sha256"] and len(high_info["seed_sha256"]) == 1
+  assert json.loads((tmp_path / "zoo/t/high/seed_0/meta.json").read_text())["low"]["sha256"]
+  with pytest.raises(ValueError, match="is the exported run"):
+    zoo.export("zoo:t/low", "t/low", "test", episodes=4, overwrite=True)
+  # a broken LL checkpoint (its first layer shuffled) is refused on load: its files are not zoo.json's
   _break_first_layer(tmp_path / "zoo", shuffle=True)
   info = json.loads((tmp_path / "zoo/t/low/zoo.json").read_text())
   assert info["slim"][0]["sha256"] != ckpt.content_hash("zoo:t/low", 0)
-  assert zoo.within_noise(*zoo.recheck("t/low"))
-  with pytest.raises(ckpt.CheckpointError, match="changed after the HL"):
-    ev.compose("zoo:t/high", "zoo:t/low")
+  for load in (lambda: zoo.recheck("t/low"), lambda: ev.compose("zoo:t/high", "zoo:t/low")):
+    with pytest.raises(ckpt.CheckpointError, match="not the one .*zoo.json records \\(its content hash differs"):
+      load()
+
+
+@pytest.fixture()
+def zoo_copy(tmp_path, monkeypatch):
+  """point/low and point/waypoint copied into a zoo of their own (zoo.ZOO_DIR points there)."""
+  import shutil
+  for name in ("point/low", "point/waypoint"):
+    shutil.copytree(zoo.ZOO_DIR / name, tmp_path / "zoo" / name)
+  monkeypatch.setattr(zoo, "ZOO_DIR", tmp_path / "zoo")
+  return tmp_path / "zoo"
+
+
+def test_an_hl_over_a_zoo_ll_whose_seed_was_replaced_is_refused(zoo_copy, tmp_path, capsys):
+  """point/waypoint records no hash of its LL; the LL's own zoo.json tells that its seed_0 is another
+  run's: refused in one line (API and command), nothing written."""
+  import hashlib
+  import shutil
+
+  from hdt.cli import main
+  ev.compose("zoo:point/waypoint", "zoo:point/low")  # intact: composes
+  # an HL entry's zoo.json may record its LL's hash (exports do): another LL's is refused
+  info_path = zoo_copy / "point" / "waypoint" / "zoo.json"
+  info_path.write_text(json.dumps(dict(json.loads(info_path.read_text()), low_sha256="0" * 64)))
+  with pytest.raises(ValueError, match="changed after the HL"):
+    ev.compose("zoo:point/waypoint", "zoo:point/low")
+  info_path.write_text(json.dumps({k: v for k, v in json.loads(info_path.read_text()).items() if k != "low_sha256"}))
+  low = zoo_copy / "point" / "low"
+  shutil.rmtree(low / "seed_0")
+  shutil.copytree(low / "seed_1", low / "seed_0")  # another run's checkpoint under seed_0
+  with pytest.raises(ValueError, match="seed_0 is not the one .*zoo.json records"):
+    ev.compose("zoo:point/waypoint", "zoo:point/low")
+  tree = lambda: {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(zoo_copy.rglob("*")) if p.is_file()}
+  before = tree()
+  for damage in ("replaced", "garbage bytes"):
+    if damage == "garbage bytes":  # a damaged data file of the HL itself
+      data = next(p for p in (zoo_copy / "point" / "waypoint" / "seed_0").rglob("*") if p.parent.name == "d")
+      data.write_bytes(b"\x00garbage" * 8)
+      before = tree()
+    assert main(["eval", "--high", "zoo:point/waypoint", "--low", "zoo:point/low", "--episodes", "1",
+                 "--out", str(tmp_path / "ev")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "content hash differs" in err and "git checkout -- zoo/point/" in err, err
+    assert tree() == before and not (tmp_path / "ev").exists()
+
+
+def test_a_failed_export_leaves_nothing_in_the_zoo(zoo_copy, monkeypatch):
+  def broken(*a, **k):
+    raise RuntimeError("evaluation failed")
+
+  monkeypatch.setattr(zoo, "_numbers", broken)
+  before = sorted(str(p) for p in zoo_copy.rglob("*"))
+  for name in ("t/new", "point/low_again"):
+    with pytest.raises(RuntimeError, match="evaluation failed"):
+      zoo.export(zoo_copy / "point" / "low", name, "test", episodes=2)
+    assert sorted(str(p) for p in zoo_copy.rglob("*")) == before
 
 
 def test_committed_zoo_stays_a_few_megabytes():
@@ -121,6 +184,14 @@ def test_committed_zoo_stays_a_few_megabytes():
     if info["level"] == "low":  # one set per seed: the best, or the final of an LL that kept no best
       for seed in (zoo.ZOO_DIR / info["name"]).glob("seed_*"):
         assert (seed / "params").is_dir() != (seed / "best/params").is_dir(), f"{seed} keeps both"
+
+
+def test_every_committed_entry_records_the_content_hash_of_each_seed():
+  from hdt.transfer import checkpoint as ckpt
+  for name in zoo.names():
+    info = json.loads((zoo.ZOO_DIR / name / "zoo.json").read_text())
+    seeds = ckpt.list_seeds(zoo.ZOO_DIR / name)
+    assert [zoo.recorded_hash(info, s) for s in seeds] == [ckpt.content_hash(zoo.ZOO_DIR / name, s) for s in seeds], name
 
 
 def test_zoo_table_lists_every_entry_with_the_parameters_its_numbers_are_of():
