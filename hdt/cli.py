@@ -26,7 +26,8 @@ import sys
 # As the `hdt` command this module loads first: a Ctrl-C while it and its imports load is held and
 # reported by main() (elsewhere it is a traceback from an import).
 _EARLY_SIGINT: list = []
-if os.path.basename(sys.argv[0] if sys.argv else "") == "hdt":
+if (__name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") == "hdt") \
+    and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a background job (nohup) keeps ignoring it
   signal.signal(signal.SIGINT, lambda *a: _EARLY_SIGINT.append(a))
 
 import argparse
@@ -890,7 +891,8 @@ def _resume_hint() -> str:
     except (ValueError, OSError):
       steps = "?"
     return f"{run} keeps its last saved training state ({steps} env steps): run the same command with --resume to continue"
-  if run is not None and run.exists():
+  rundir = sys.modules.get("hdt.transfer.rundir")
+  if run is not None and run.exists() and rundir.owner_kind(run) == "run":
     return f"{run} holds no saved training state yet: run the same command with --overwrite to start again"
   return "nothing was written"
 

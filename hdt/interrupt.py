@@ -39,7 +39,8 @@ def catch(pressed_before: bool = False) -> None:
   if pressed_before:
     _PRESSED.set()
   if threading.current_thread() is threading.main_thread():
-    signal.signal(signal.SIGINT, _on_sigint)
+    if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN:  # a background job (nohup) keeps ignoring it
+      signal.signal(signal.SIGINT, _on_sigint)
     if not getattr(sys.unraisablehook, "hdt", False):
       sys.unraisablehook = _unraisable(sys.unraisablehook)
       sys.unraisablehook.hdt = True
