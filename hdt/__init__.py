@@ -1,8 +1,8 @@
 """hdt: hierarchically decoupled morphological transfer in pure JAX."""
 
-__version__ = "0.1.0"
-
 import importlib
+
+from hdt.version import __version__  # noqa: F401 (a leaf: imports nothing)
 
 # Imported on first use: ``import hdt`` (and the ``hdt`` command, which handles Ctrl-C before JAX is
 # imported) costs nothing until a name below is used.

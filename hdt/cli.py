@@ -581,9 +581,9 @@ def _grid_value(name: str, text: str, field: dataclasses.Field):
 def cmd_sweep(args) -> int:
   from hdt import atomic
   from hdt.report import markdown_table
-  from hdt.transfer import pipeline, rundir
+  from hdt.transfer import pipeline, rundir, sweep
   fields = {f.name: f for f in dataclasses.fields(SACConfig)}
-  weights = pipeline.WEIGHTS.get(args.level, ())  # the level's plug-in weights (kl_weight, disc_weight)
+  weights = sweep.WEIGHTS.get(args.level, ())  # the level's plug-in weights (kl_weight, disc_weight)
   grid = {}
   for g in args.grid:
     if "=" not in g:
@@ -629,7 +629,7 @@ def cmd_sweep(args) -> int:
     from hdt.transfer.finetune import load_high
     load_high(args.high)  # checked to be an HL
   disc = {"disc": _disc(args, pipeline.load_low(args.imitate)[1]["agent"])} if args.level == "align" else {}
-  pipeline.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], disc)
+  sweep.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], disc)
   with rundir.claim(root, "sweep", overwrite=args.overwrite, reads=reads):
     rows = _sweep(args, grid, root, seeds, overrides, disc)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
@@ -642,8 +642,8 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc: dict
   import numpy as np
   from hdt.envs.tasks import get_task
   from hdt.report import fmt
-  from hdt.transfer import pipeline
   from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import sweep
   level = {"align": "low"}.get(args.level, args.level)  # of the SAC config
   extra = {}
   if args.level == "finetune":  # as `hdt finetune`, and the preset's task options
@@ -653,7 +653,7 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc: dict
   for values in itertools.product(*grid.values()):
     point = dict(zip(grid, values))
     names.append(",".join(f"{k_}={v}" for k_, v in point.items()))
-    weights = {k: float(v) for k, v in point.items() if k in pipeline.WEIGHTS.get(args.level, ())}
+    weights = {k: float(v) for k, v in point.items() if k in sweep.WEIGHTS.get(args.level, ())}
     sac = {k: v for k, v in point.items() if k not in weights}
     runs.append((sac_config(args, level, args.agent, args.task if level != "low" else None, **extra, **sac),
                  root / names[-1].replace("/", "_"), weights))
@@ -666,7 +666,7 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc: dict
                                  imitate_params=args.imitate_params, **disc)}[args.level]()
   # points differing only in SWEEPABLE fields (learning rates, tau, gamma, reward scale, target entropy)
   # or the plug-in weights train as one vmapped program
-  results = pipeline.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)
+  results = sweep.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)
   metric = get_task(args.task if level != "low" else "reach").headline_column
   rows = []
   for name, (_, out, _), res in zip(names, runs, results):
@@ -724,9 +724,9 @@ def cmd_reproduce(args) -> int:
 
 
 def cmd_zoo(args) -> int:
-  from hdt.transfer import zoo
+  from hdt.transfer import names, zoo
   if args.action == "list":
-    print(zoo.table() if zoo.names() else f"the zoo ({zoo.ZOO_DIR}) is empty")
+    print(zoo.table() if zoo.entry_names() else f"the zoo ({names.ZOO_DIR}) is empty")
     return 0
   if not args.run or not args.name:
     raise CLIError("hdt zoo export needs RUN and --name NAME, e.g. hdt zoo export runs/pm_low --name point/low")
@@ -791,7 +791,7 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   print(markdown_table(["task", "HL", "LL", "hdt", "paper (full budget)"],
                        [["waypoint", "PM HL", "PM LL", fmt(own["return_mean"], own["return_std"]), "1021 ± 43"]]))
   rows, table = [], []
-  available = set(zoo.names())
+  available = set(zoo.entry_names())
   for task, label, hl_run, ll_run, random, paper in QUICKSTART_TRANSFERS:
     if ll_run[len(zoo.PREFIX):] not in available:
       continue  # that LL is not in this checkout's zoo

@@ -9,7 +9,7 @@ import pytest
 
 from hdt.envs import make
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer import configs, zoo
+from hdt.transfer import configs, names, zoo
 from hdt.transfer.card import CARD_FORMAT, FORMAT_KEY, ObsLayout, PolicyCard, load_low
 from hdt.transfer.hierarchy import HighLevelEnv
 
@@ -55,11 +55,11 @@ def test_high_card_carries_the_hl_observation_layout():
   assert rebuilt.observation_size == card.obs_size
 
 
-@pytest.mark.parametrize("name", zoo.names())
+@pytest.mark.parametrize("name", zoo.entry_names())
 def test_committed_zoo_cards_load_and_round_trip(name):
   """Every zoo card loads and writes the same content; one written before the card format was
   recorded loads as format 1."""
-  meta = json.loads((zoo.ZOO_DIR / name / "meta.json").read_text())
+  meta = json.loads((names.ZOO_DIR / name / "meta.json").read_text())
   assert meta.get(FORMAT_KEY, CARD_FORMAT) == CARD_FORMAT
   card = PolicyCard.from_json(meta, name)
   assert card.to_json() == dict(meta, **{FORMAT_KEY: CARD_FORMAT})

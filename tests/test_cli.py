@@ -160,7 +160,7 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hdt.transfer import checkpoint as ckpt  # noqa: E402
-from hdt.transfer import zoo  # noqa: E402
+from hdt.transfer import names, zoo  # noqa: E402
 
 
 def tree_hash(root: Path) -> dict:
@@ -393,11 +393,11 @@ def test_bad_cli_input_is_one_line_and_changes_nothing(case, fakes, tmp_path, ca
   cwd = tmp_path / "cwd"
   cwd.mkdir()
   monkeypatch.chdir(cwd)  # default --out directories would appear here
-  names = {p.name: str(p) for p in fakes.iterdir()} | {"new": str(tmp_path / "new"), "fakes": str(fakes),
-                                                      "zoo": str(zoo.ZOO_DIR)}
-  argv, fragment = [a.format(**names) for a in argv], fragment.format(**names)
+  paths = {p.name: str(p) for p in fakes.iterdir()} | {"new": str(tmp_path / "new"), "fakes": str(fakes),
+                                                      "zoo": str(names.ZOO_DIR)}
+  argv, fragment = [a.format(**paths) for a in argv], fragment.format(**paths)
   touches_zoo = any("zoo" in a for a in argv)
-  before, zoo_before = tree_hash(fakes), tree_hash(zoo.ZOO_DIR) if touches_zoo else None
+  before, zoo_before = tree_hash(fakes), tree_hash(names.ZOO_DIR) if touches_zoo else None
   code = main(argv)
   err = capsys.readouterr().err.strip()
   assert code != 0 and fragment in err, err
@@ -405,7 +405,7 @@ def test_bad_cli_input_is_one_line_and_changes_nothing(case, fakes, tmp_path, ca
   assert "internal error" not in err, err  # each case has its own message, not the catch-all
   assert not ("not an hdt directory" in err and "overwrite" in err), err  # never advice to destroy the user's
   assert tree_hash(fakes) == before
-  assert zoo_before is None or tree_hash(zoo.ZOO_DIR) == zoo_before
+  assert zoo_before is None or tree_hash(names.ZOO_DIR) == zoo_before
   assert not (tmp_path / "new").exists() and not any(cwd.iterdir())
 
 
@@ -489,14 +489,14 @@ def test_an_hl_that_records_no_ll_hash_is_refused_over_an_ll_whose_seed_was_repl
 def test_sweep_sac_options_apply_to_every_grid_point(monkeypatch, tmp_path):
   """`hdt sweep` takes `hdt train`'s SAC options: fixed for every point, the grid's field varying."""
   from types import SimpleNamespace
-  from hdt.transfer import pipeline
+  from hdt.transfer import sweep as sweep_mod
   seen = []
 
   def fake_sweep(level, runs, seeds, **kw):  # what would be trained, without training it
     seen.extend(runs)
     return [SimpleNamespace(history={"eval/success_max": np.zeros((seeds, 1))}) for _ in runs]
 
-  monkeypatch.setattr(pipeline, "sweep", fake_sweep)
+  monkeypatch.setattr(sweep_mod, "sweep", fake_sweep)
   assert main(["sweep", "low", "--agent", "arm3", "--preset", "smoke", "--quiet", "--grid", "target_entropy=-3,-9",
                "--num-envs", "4", "--batch-size", "8", "--out", str(tmp_path / "sw")]) == 0
   assert [c.target_entropy for c, _, _ in seen] == [-3, -9]
@@ -673,8 +673,8 @@ def test_finetune_takes_the_papers_beta_and_learning_rate_of_the_task(monkeypatc
   assert run("zoo:point/maze", "maze", "--actor-lr", "2e-3") == 0 and seen["lr"] is None
   assert lrs() == (2e-3, 1e-3, 1e-3)  # the other two: the task's
   # `hdt sweep finetune` takes the same defaults; a gridded learning rate is the grid's.
-  from hdt.transfer import pipeline
-  monkeypatch.setattr(pipeline, "sweep", lambda level, runs, *a, **k: seen.update(runs=runs) or 1 / 0)
+  from hdt.transfer import sweep as sweep_mod
+  monkeypatch.setattr(sweep_mod, "sweep", lambda level, runs, *a, **k: seen.update(runs=runs) or 1 / 0)
   sweep = lambda *grid: main(["sweep", "finetune", "--high", "zoo:point/maze", "--low", "zoo:point/low", "--task",
                               "maze", "--preset", "smoke", "--quiet", "--out", str(tmp_path / "sw"), *grid])
   sweep("--grid", "kl_weight=0,1")

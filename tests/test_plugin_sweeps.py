@@ -14,7 +14,7 @@ from hdt.agents.plugins import Plugin
 from hdt.transfer import configs
 from hdt.transfer.align import align_low
 from hdt.transfer.finetune import finetune_high
-from hdt.transfer.pipeline import sweep
+from hdt.transfer.sweep import sweep
 
 
 def _same_runs(grid_res, alone_res):

@@ -28,7 +28,7 @@ from hdt.agents import train as sac_train
 from hdt.agents.discriminator import DiscConfig
 from hdt.agents.sac import SACConfig
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer import pipeline, runner
+from hdt.transfer import pipeline, runner, sweep
 from toy_env import PointGoal
 
 ENV = PointGoal()
@@ -389,7 +389,7 @@ from hdt.transfer.align import align_low  # noqa: E402
 from hdt.transfer.evaluate import compose, evaluate  # noqa: E402
 from hdt.transfer.finetune import finetune_high  # noqa: E402
 from hdt.transfer.hierarchy import HighLevelEnv  # noqa: E402
-from hdt.transfer import zoo  # noqa: E402
+from hdt.transfer import names, zoo  # noqa: E402
 from hdt.transfer.pipeline import train_full, train_high, train_low  # noqa: E402
 
 PCFG = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=25, batch_size=16,
@@ -549,7 +549,7 @@ BAD_INPUTS = {
     "networks beyond memory": (lambda r: lambda out: train_low("point", configs.replace(PCFG, hidden_sizes=(200_000,) * 2),
                                                                 out=out, quiet=True),
                                "networks \\[200000, 200000\\].*GiB of memory"),
-    "two grid points, one out": (lambda r: lambda out: pipeline.sweep("low", [(PCFG, out), (PCFG, out)], agent="point",
+    "two grid points, one out": (lambda r: lambda out: sweep.sweep("low", [(PCFG, out), (PCFG, out)], agent="point",
                                                                       quiet=True),
                                  "two grid points would write the same directory"),
     # never an input, another run, the zoo or the user's directory
@@ -557,7 +557,7 @@ BAD_INPUTS = {
                                                              overwrite=True), "is the low run .* this command reads"),
     "out inside a run": (lambda r: lambda out: train_low("point", PCFG, out=r / "point_state" / "state" / "x"),
                          "lies inside the hdt run directory"),
-    "out in the zoo": (lambda r: lambda out: train_low("point", PCFG, out=zoo.ZOO_DIR / "point" / "low", overwrite=True),
+    "out in the zoo": (lambda r: lambda out: train_low("point", PCFG, out=names.ZOO_DIR / "point" / "low", overwrite=True),
                        "lies in the model zoo"),
     "out a user dir with meta.json": (lambda r: lambda out: train_low("point", PCFG, out=r / "user_meta", overwrite=True),
                                       "is not an hdt directory and not empty \\(it holds meta.json\\)"),
@@ -584,12 +584,12 @@ def test_bad_input_fails_clearly_and_writes_nothing(case, runs, tmp_path):
   make_call, message = BAD_INPUTS[case]
   out = tmp_path / "out"
   before = _snapshot(runs)
-  zoo_before = _snapshot(zoo.ZOO_DIR) if "zoo" in case else None
+  zoo_before = _snapshot(names.ZOO_DIR) if "zoo" in case else None
   with pytest.raises(ValueError, match=message):  # CheckpointError is a ValueError
     make_call(runs)(out)
   assert not out.exists()
   assert _snapshot(runs) == before
-  assert zoo_before is None or _snapshot(zoo.ZOO_DIR) == zoo_before
+  assert zoo_before is None or _snapshot(names.ZOO_DIR) == zoo_before
 
 
 # ------------------------------------------------------------------------------------------------
@@ -820,7 +820,7 @@ def test_mujoco_warnings_are_counted_not_printed(capfd):
   env = make("ant", "reach")
   s = env.reset(jax.random.PRNGKey(0))
   s = s.replace(physics=jax.tree.map(lambda x: x * 1e30 if jnp.issubdtype(x.dtype, jnp.floating) else x, s.physics))
-  with pipeline.counted_mujoco_warnings() as warned:
+  with runner.counted_mujoco_warnings() as warned:
     jax.block_until_ready(jax.jit(env.step)(s, jnp.full(env.action_size, 1e30)))
   out, err = capfd.readouterr()
   assert warned and "unstable" in warned[0] and "WARNING" not in out + err.replace("simulation warning", "")

@@ -112,9 +112,9 @@ def test_uniform_actions_ignore_the_policy_and_draw_from_the_env_key():
 
 
 def test_sweep_trains_same_shape_points_together_and_writes_each_run(tmp_path):
-  """pipeline.sweep: two learning rates (one vmapped program) and another batch size (in turn); each
+  """sweep: two learning rates (one vmapped program) and another batch size (in turn); each
   grid point writes the run directory train_low writes, with the results of training it alone."""
-  from hdt.transfer.pipeline import sweep
+  from hdt.transfer.sweep import sweep
   base = configs.low_config("point", total_env_steps=400, num_envs=2, steps_per_chunk=100, batch_size=16,
                             buffer_size=1000, learning_starts=100, num_eval_episodes=4)
   cfgs = [dataclasses.replace(base, actor_lr=lr, critic_lr=lr) for lr in (1e-4, 3e-4)]

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from hdt.transfer import evaluate as ev
-from hdt.transfer import zoo
+from hdt.transfer import names, zoo
 
 
-@pytest.mark.parametrize("name", zoo.names())
+@pytest.mark.parametrize("name", zoo.entry_names())
 def test_zoo_entry_reevaluates_to_its_recorded_check(name):
   recorded, fresh = zoo.recheck(name)
   assert not zoo.within_noise(recorded, fresh), f"{name}: {'; '.join(zoo.within_noise(recorded, fresh))}"
@@ -67,7 +67,7 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   import orbax.checkpoint as ocp
 
   from hdt.transfer import checkpoint as ckpt
-  monkeypatch.setattr(zoo, "ZOO_DIR", tmp_path / "zoo")
+  monkeypatch.setattr(names, "ZOO_DIR", tmp_path / "zoo")
   run = point_low.run_dir if hasattr(point_low, "run_dir") else point_low
   high = point_high.run_dir if hasattr(point_high, "run_dir") else point_high
   zoo.export(run, "t/low", "test", episodes=4)
@@ -118,11 +118,11 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
 
 @pytest.fixture()
 def zoo_copy(tmp_path, monkeypatch):
-  """point/low and point/waypoint copied into a zoo of their own (zoo.ZOO_DIR points there)."""
+  """point/low and point/waypoint copied into a zoo of their own (names.ZOO_DIR points there)."""
   import shutil
   for name in ("point/low", "point/waypoint"):
-    shutil.copytree(zoo.ZOO_DIR / name, tmp_path / "zoo" / name)
-  monkeypatch.setattr(zoo, "ZOO_DIR", tmp_path / "zoo")
+    shutil.copytree(names.ZOO_DIR / name, tmp_path / "zoo" / name)
+  monkeypatch.setattr(names, "ZOO_DIR", tmp_path / "zoo")
   return tmp_path / "zoo"
 
 
@@ -176,27 +176,27 @@ def test_committed_zoo_stays_a_few_megabytes():
   size = lambda d: sum(p.stat().st_size for p in d.rglob("*") if p.is_file())
   # per entry (3 seeds): an LL's policies ≈ 0.2 MB, an HL's SAC ≈ 0.4 MB, the legged LLs ≈ 0.55 MB; a
   # replay buffer, an Adam state or an LL's final SAC kept by mistake is more than 0.8 MB
-  total = size(zoo.ZOO_DIR) / 1e6
+  total = size(names.ZOO_DIR) / 1e6
   assert total < 10, f"zoo/ holds {total:.1f} MB: too many entries to commit"
   for info in zoo.entries():
-    mb = size(zoo.ZOO_DIR / info["name"]) / 1e6
+    mb = size(names.ZOO_DIR / info["name"]) / 1e6
     assert mb < 0.8, f"zoo entry {info['name']} holds {mb:.2f} MB; export policies only (zoo.export slims them)"
     if info["level"] == "low":  # one set per seed: the best, or the final of an LL that kept no best
-      for seed in (zoo.ZOO_DIR / info["name"]).glob("seed_*"):
+      for seed in (names.ZOO_DIR / info["name"]).glob("seed_*"):
         assert (seed / "params").is_dir() != (seed / "best/params").is_dir(), f"{seed} keeps both"
 
 
 def test_every_committed_entry_records_the_content_hash_of_each_seed():
   from hdt.transfer import checkpoint as ckpt
-  for name in zoo.names():
-    info = json.loads((zoo.ZOO_DIR / name / "zoo.json").read_text())
-    seeds = ckpt.list_seeds(zoo.ZOO_DIR / name)
-    assert [zoo.recorded_hash(info, s) for s in seeds] == [ckpt.content_hash(zoo.ZOO_DIR / name, s) for s in seeds], name
+  for name in zoo.entry_names():
+    info = json.loads((names.ZOO_DIR / name / "zoo.json").read_text())
+    seeds = ckpt.list_seeds(names.ZOO_DIR / name)
+    assert [names.recorded_hash(info, s) for s in seeds] == [ckpt.content_hash(names.ZOO_DIR / name, s) for s in seeds], name
 
 
 def test_zoo_table_lists_every_entry_with_the_parameters_its_numbers_are_of():
   rows = [r.split(" | ") for r in zoo.table().splitlines()[2:]]
-  assert [r[0] for r in rows] == zoo.names()
+  assert [r[0] for r in rows] == zoo.entry_names()
   assert {r[5] for r in rows if r[1] == "low"} <= {"best", "final"} and {r[5] for r in rows if r[1] == "high"} == {"final"}
 
 
@@ -205,7 +205,7 @@ def test_an_hl_run_started_over_an_older_zoo_copy_resumes_after_the_entry_is_sli
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import configs
   from hdt.transfer.pipeline import train_high
-  monkeypatch.setattr(zoo, "ZOO_DIR", tmp_path / "zoo")
+  monkeypatch.setattr(names, "ZOO_DIR", tmp_path / "zoo")
   run = point_low.run_dir if hasattr(point_low, "run_dir") else point_low
   zoo.export(run, "t/low", "test", episodes=4)
   _as_exported_before_slimming(run, tmp_path / "zoo")

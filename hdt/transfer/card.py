@@ -45,6 +45,9 @@ _TYPED = ("level", "agent", "task", "family", "goal_space", "k", "delta_max", "o
           "obs_lo_size", "obs_hi_size", "hidden_sizes", "hl_obs", "hl_horizon", "env_overrides",
           "task_overrides")
 USES = ("low", "compose", "finetune", "align")
+# Which parameters of an LL an HL runs over: the authors compose with the LL's best model
+# (HighLevelEnv: load_from_name(policy, best=True)).
+LOW_PARAMS = "best"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -29,18 +29,14 @@ import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
-import hdt
 from hdt import atomic
 from hdt.agents import normalizer
-from hdt.transfer import zoo
-from hdt.transfer.zoo import resolve as zoo_path  # zoo:NAME wherever a run is read
+from hdt.transfer import names
+from hdt.transfer.names import SEED_HASHES, CheckpointError, content_hash, current, existing_seed_dir, list_seeds, seed_dir
+from hdt.transfer.names import resolve as zoo_path  # zoo:NAME wherever a run is read
+from hdt.version import __version__
 
 FORMAT_VERSION = 1
-SEED_HASHES = "seed_sha256"  # a run's meta.json: the content hash of each seed's checkpoint
-
-
-class CheckpointError(ValueError):
-  """A checkpoint is missing, corrupt, or does not fit where it is used."""
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:
@@ -54,10 +50,6 @@ def jsonable(x):
   if isinstance(x, tuple):
     return list(x)
   raise TypeError(f"not JSON serialisable: {type(x)}")
-
-
-def seed_dir(run_dir: Path, seed_index: int) -> Path:
-  return Path(run_dir) / f"seed_{seed_index}"
 
 
 _atomic_dir = atomic.replace_dir
@@ -98,14 +90,6 @@ def _orbax_restore(path: Path):
     return ocp.PyTreeCheckpointer().restore(path)
 
 
-def _resolve(d: Path) -> Path | None:
-  """``d``, or ``d.old`` when a write was killed between its two renames, or None."""
-  if d.exists():
-    return d
-  old = atomic.old(d)
-  return old if old.exists() else None
-
-
 WHICH = ("final", "best")
 
 
@@ -115,7 +99,7 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
   (params, info) of the best periodic evaluation goes to ``best/params`` and ``meta["best"]``."""
   run_dir = Path(run_dir).resolve()  # orbax wants absolute paths
   params = jax.tree.map(np.asarray, jax.device_get(params))
-  meta = dict(meta, format_version=FORMAT_VERSION, hdt_version=hdt.__version__, seed_index=seed_index)
+  meta = dict(meta, format_version=FORMAT_VERSION, hdt_version=__version__, seed_index=seed_index)
   if best is not None:
     meta["best"] = best[1]
 
@@ -128,40 +112,16 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
   return _atomic_dir(seed_dir(run_dir, seed_index), write)
 
 
-def _resolve_seed_dir(run_dir: Path, seed_index: int) -> Path:
-  d = _resolve(seed_dir(run_dir, seed_index))
-  if d is None:
-    raise CheckpointError(f"no checkpoint for seed {seed_index} in {run_dir} (expected "
-                          f"{seed_dir(run_dir, seed_index)}); seeds present: "
-                          f"{list_seeds(run_dir) or 'none'}")
-  return d
-
-
-def content_hash(run_dir: str | Path, seed_index: int | None = None) -> str:
-  """sha256 over the files (relative names and bytes) of one seed's checkpoint, or of every seed's:
-  recorded by runs that depend on a checkpoint, so resuming or evaluating them after it changed
-  (e.g. the LL was retrained) is refused."""
-  run_dir = zoo_path(run_dir)
-  dirs = ([_resolve_seed_dir(Path(run_dir), seed_index)] if seed_index is not None
-          else [_resolve_seed_dir(Path(run_dir), s) for s in list_seeds(run_dir)])
-  h = hashlib.sha256()
-  for d in dirs:
-    for f in sorted(p for p in d.rglob("*") if p.is_file()):
-      h.update(str(f.relative_to(d)).encode() + b"\0")
-      h.update(f.read_bytes())
-  return h.hexdigest()
-
-
 def check_unchanged(run_dir: str | Path, seed_index: int) -> None:
   """Refuses (CheckpointError) seed ``seed_index`` of ``run_dir`` if its files are not those its zoo
   entry's zoo.json or its run's meta.json recorded (replaced by another run's, edited or damaged);
   runs and entries that record no hash are not checked."""
   run_dir = Path(zoo_path(run_dir))
-  info = zoo.info_of(run_dir)
+  info = names.info_of(run_dir)
   if info is not None:
-    want, where = zoo.recorded_hash(info, seed_index), run_dir / "zoo.json"
+    want, where = names.recorded_hash(info, seed_index), run_dir / "zoo.json"
     try:
-      rel = f"zoo/{run_dir.resolve().relative_to(zoo.ZOO_DIR.resolve())}"
+      rel = f"zoo/{run_dir.resolve().relative_to(names.ZOO_DIR.resolve())}"
     except ValueError:
       rel = str(run_dir)
     fix = f"restore the entry (e.g. git checkout -- {rel})"
@@ -173,7 +133,7 @@ def check_unchanged(run_dir: str | Path, seed_index: int) -> None:
     ok = isinstance(hashes, list) and 0 <= seed_index < len(hashes) and isinstance(hashes[seed_index], str)
     want, where, fix = (hashes[seed_index] if ok else None), run_dir / "meta.json", "restore it from a backup, or re-train the run"
   if want is not None and content_hash(run_dir, seed_index) != want:
-    raise CheckpointError(f"the checkpoint {_resolve_seed_dir(run_dir, seed_index)} is not the one {where} records "
+    raise CheckpointError(f"the checkpoint {existing_seed_dir(run_dir, seed_index)} is not the one {where} records "
                           f"(its content hash differs: its files were replaced, edited or damaged); {fix}")
 
 
@@ -195,28 +155,15 @@ def require(meta: dict, fields: dict[str, type | tuple], where: str | Path) -> d
 def has_state(run_dir: str | Path) -> bool:
   """Whether ``run_dir`` holds a complete resumable state (``state/``, or ``state.old`` after a kill
   between the two renames of a save)."""
-  return _resolve(state_dir(run_dir)) is not None
+  return current(state_dir(run_dir)) is not None
 
 
 def settle_state(run_dir: str | Path) -> None:
   """Completes a save killed between its two renames (``state.old`` but no ``state/``); call it
   only while holding the run directory's lock."""
   d = state_dir(run_dir)
-  if not d.exists() and _resolve(d) is not None:
-    os.replace(_resolve(d), d)
-
-
-def list_seeds(run_dir: str | Path) -> list[int]:
-  run_dir = zoo_path(run_dir)
-  run_dir = Path(run_dir)
-  if not run_dir.is_dir():
-    return []
-  out = set()
-  for p in run_dir.iterdir():
-    name = p.name.removesuffix(".old")
-    if name.startswith("seed_") and name[5:].isdigit() and (p / "meta.json").exists():
-      out.add(int(name[5:]))
-  return sorted(out)
+  if not d.exists() and current(d) is not None:
+    os.replace(current(d), d)
 
 
 def load_meta(run_dir: str | Path, seed_index: int = 0) -> dict:
@@ -225,7 +172,7 @@ def load_meta(run_dir: str | Path, seed_index: int = 0) -> dict:
   if not run_dir.exists():
     raise CheckpointError(f"checkpoint directory {run_dir} does not exist; pass the RUN directory a "
                           f"training command printed (it holds seed_0/, seed_1/, ...)")
-  d = _resolve_seed_dir(run_dir, seed_index)
+  d = existing_seed_dir(run_dir, seed_index)
   return _read_meta(d / "meta.json")
 
 
@@ -242,11 +189,11 @@ def _read_meta(path: Path) -> dict:
   if fv != FORMAT_VERSION:
     d = path.parent
     if isinstance(fv, int) and fv > FORMAT_VERSION:
-      fix = f"upgrade hdt (this is {hdt.__version__}) to read it"
+      fix = f"upgrade hdt (this is {__version__}) to read it"
     else:
       fix = (f"re-train it, or load it with the hdt that wrote it "
              f"({meta.get('hdt_version', 'unknown version')})")
-    raise CheckpointError(f"checkpoint {d} has format version {fv!r} but this hdt ({hdt.__version__}) "
+    raise CheckpointError(f"checkpoint {d} has format version {fv!r} but this hdt ({__version__}) "
                           f"reads version {FORMAT_VERSION}: {fix}")
   return meta
 
@@ -268,7 +215,7 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
   check_which(which)
   meta = load_meta(run_dir, seed_index)
   check_unchanged(run_dir, seed_index)
-  d = _resolve_seed_dir(Path(run_dir).resolve(), seed_index)
+  d = existing_seed_dir(Path(run_dir).resolve(), seed_index)
   has_best = isinstance(meta.get("best"), dict)
   use = "best" if which == "best" and has_best else "final"
   if use == "final" and has_best and not (d / "params").exists() and (Path(run_dir) / "zoo.json").is_file():
@@ -355,7 +302,7 @@ def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], i
   # orbax keys must be plain names: index them, and keep the real names in state.json
   index = lambda named: {f"{i:05d}": x for i, (_, x) in enumerate(named)}
   arrays = {"state": index(leaves), "history": index(hist), "best": index(best_leaves)}
-  info = dict(info, format_version=FORMAT_VERSION, hdt_version=hdt.__version__, kind="train_state",
+  info = dict(info, format_version=FORMAT_VERSION, hdt_version=__version__, kind="train_state",
               leaves=_leaf_specs(leaves), history=_leaf_specs(hist))
   if best is not None:
     info["best_leaves"] = _leaf_specs(best_leaves)
@@ -369,7 +316,7 @@ def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], i
 
 def load_state_info(run_dir: str | Path) -> dict:
   """``state.json`` of the resumable state in ``run_dir`` (checked readable and of this format)."""
-  d = _resolve(state_dir(run_dir))
+  d = current(state_dir(run_dir))
   if d is None:
     what = "does not exist" if not Path(run_dir).exists() else f"has no saved training state ({STATE}/)"
     raise CheckpointError(f"cannot resume: {run_dir} {what}; start the run without resume (or pass the "
@@ -439,7 +386,7 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
   ``template`` (e.g. ``jax.eval_shape`` of the trainer's init), whose leaf names, shapes and dtypes
   must match; so must ``best_template``'s, if given and a best record was saved (else best=None)."""
   info = load_state_info(run_dir)
-  d = _resolve(state_dir(Path(run_dir).resolve()))
+  d = current(state_dir(Path(run_dir).resolve()))
 
   def fits(got, tree):  # (treedef, saved indices per leaf of tree, shape per leaf of tree)
     flat, treedef = jax.tree_util.tree_flatten_with_path(tree)

@@ -13,6 +13,7 @@ import dataclasses
 import numbers
 
 from hdt.agents.sac import SACConfig
+from hdt.envs.families import FAMILIES
 from hdt.envs.robot import agent_spec
 from hdt.envs.tasks import TASKS, get_task
 
@@ -157,7 +158,6 @@ def preset_overrides(preset: str, level: str, agent: str | None = None) -> dict:
 
 def describe_paper_budgets() -> str:
   """The paper preset's budgets in one line (``--preset`` help), read from the agents and tasks."""
-  from hdt.envs.families import FAMILIES
   k = lambda n: f"{n / 1e6:g}M" if n >= 1e6 else f"{n // 1000}k"
   low = "/".join(k(f["ll_budget"]) for f in FAMILIES.values())
   high = ", ".join(f"{k(hl_budget(t))} {t}" for t in TASKS if TASKS[t]().hl_budget)

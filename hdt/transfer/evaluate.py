@@ -13,9 +13,9 @@ import numpy as np
 from hdt.agents import acting
 from hdt.envs.tasks import TASKS, get_task
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer.card import REQUIRED, PolicyCard
-from hdt.transfer.pipeline import LOW_PARAMS
-from hdt.transfer.runner import check_memory, state_bytes
+from hdt.transfer import names
+from hdt.transfer.card import LOW_PARAMS, REQUIRED, PolicyCard
+from hdt.transfer.memory import check_memory, state_bytes
 
 
 @dataclasses.dataclass
@@ -72,12 +72,11 @@ def trained_over(hm: dict, low: str | Path) -> int | None:
 def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
   """Refuses an HL over the LL run it was trained over if that LL changed since (retrained): against
   the hash the HL's card records, or for a zoo HL without one, its zoo.json."""
-  from hdt.transfer import zoo
   seed = trained_over(hm, low)
-  want = None if seed is None else hm["low"].get("sha256") or zoo.recorded_low_hash(high)
+  want = None if seed is None else hm["low"].get("sha256") or names.recorded_low_hash(high)
   if not want:
     return  # another LL (a transfer, not a dependency), or nothing recorded (ckpt.load checks the LL's own record)
-  if want not in zoo.hash_aliases(low, seed):
+  if want not in names.hash_aliases(low, seed):
     raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
                                f"content hash differs: was it retrained?); retrain the HL over it, or "
                                f"restore the LL it was trained over")

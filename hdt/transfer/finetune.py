@@ -43,8 +43,8 @@ from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.card import PolicyCard, check_level
-from hdt.transfer.pipeline import LOW_PARAMS, high_env_with_low, sac_extras, train_high
+from hdt.transfer.card import LOW_PARAMS, PolicyCard, check_level
+from hdt.transfer.pipeline import high_env_with_low, sac_extras, train_high
 from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
 
 train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
@@ -241,6 +241,6 @@ def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0
                   init=init, kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
                   anneal_env_steps=float(anneal_steps))
   label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
-  # a grid over the KL plug-in's kl_weight (hdt.transfer.pipeline.sweep) records each point's beta
+  # a grid over the KL plug-in's kl_weight (hdt.transfer.sweep) records each point's beta
   point_meta = lambda meta, h: dict(meta, **({"kl": h[WEIGHT]} if WEIGHT in h else {}))
   return Stage(env, config, meta, label, plugins=tuple(plugins), save_extra=sac_extras, point_meta=point_meta)

@@ -34,7 +34,8 @@ from pathlib import Path
 from typing import Iterator, Mapping
 
 from hdt import atomic
-from hdt.transfer import zoo
+from hdt.transfer import names
+from hdt.version import __version__
 
 MARKER = ".hdt-run"
 LOCK = ".hdt-lock"
@@ -86,9 +87,8 @@ def owner_kind(path) -> str | None:
 
 
 def _marker(kind: str) -> dict:
-  import hdt
   return dict(kind=kind, id=uuid.uuid4().hex, created=datetime.datetime.now().isoformat(timespec="seconds"),
-              host=socket.gethostname(), pid=os.getpid(), hdt_version=hdt.__version__)
+              host=socket.gethostname(), pid=os.getpid(), hdt_version=__version__)
 
 
 def check_out(out, what: str = "out") -> Path:
@@ -139,8 +139,8 @@ def _inputs(reads) -> list[tuple[str, Path]]:
     if r is None:
       continue
     try:
-      out.append((label, _real(zoo.resolve(r))))
-    except zoo.ZooError:
+      out.append((label, _real(names.resolve(r))))
+    except names.ZooError:
       continue  # an unknown zoo name is reported where it is read
   return out
 
@@ -149,7 +149,7 @@ def check_place(path, what: str = "out", reads=(), zoo_ok: bool = False) -> None
   """Refuses ``path`` in the model zoo (unless ``zoo_ok``), inside another hdt run, or where it is,
   holds or lies inside a run the command reads (``reads``: see :func:`_inputs`)."""
   real = _real(path)
-  zoo_dir = _real(zoo.ZOO_DIR)
+  zoo_dir = _real(names.ZOO_DIR)
   if not zoo_ok and (real == zoo_dir or zoo_dir in real.parents):
     raise RunDirError(f"{what}={path} lies in the model zoo ({zoo_dir}), which only `hdt zoo export` writes; "
                       f"pass a directory outside it, e.g. runs/my-run")

@@ -24,7 +24,8 @@ from hdt.agents import train as sac_train
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SWEEPABLE, SACConfig
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer import rundir
+from hdt.transfer import names, rundir
+from hdt.transfer.memory import check_train_memory
 from hdt.transfer.card import FORMAT_KEY, PolicyCard
 
 
@@ -261,66 +262,6 @@ def _same(a: Path, b: Path) -> bool:
   return Path(os.path.abspath(a)) == Path(os.path.abspath(b))
 
 
-def _available_bytes() -> int:
-  try:
-    with open("/proc/meminfo") as f:
-      return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
-  except (OSError, StopIteration, ValueError):
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-
-
-def _tree_bytes(tree) -> int:
-  return sum(int(np.prod(x.shape)) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(tree))
-
-
-def state_bytes(env) -> int:
-  """Bytes of one env state (from its shapes, nothing allocated)."""
-  return _tree_bytes(jax.eval_shape(env.reset, jax.ShapeDtypeStruct((2,), np.uint32)))
-
-
-def check_memory(need: int, what: str, fix: str) -> None:
-  """Refuses (one line) a request whose estimated size ``need`` exceeds 90% of available memory."""
-  avail = _available_bytes()
-  if need > 0.9 * avail:
-    raise ValueError(f"{what} needs about {need / 2**30:.3g} GiB but {avail / 2**30:.3g} GiB of memory are "
-                     f"available: {fix}")
-
-
-def _mlp_params(sizes, n_in: int, n_out: int) -> int:
-  dims = [n_in, *sizes, n_out]
-  return sum(a * b + b for a, b in zip(dims[:-1], dims[1:]))
-
-
-def network_bytes(obs_size: int, action_size: int, config: SACConfig) -> int:
-  """Float32 bytes of one seed's SAC networks as training keeps them: the actor with its gradient and
-  two Adam moments (4 copies), the twin critics (and V) also with their targets (5 copies), and a
-  batch of activations."""
-  actor = _mlp_params(config.hidden_sizes, obs_size, 2 * action_size)
-  critics = 2 * _mlp_params(config.critic_sizes, obs_size + action_size, 1)
-  if getattr(config, "value_net", False):
-    critics += _mlp_params(config.critic_sizes, obs_size, 1)
-  widest = max([*config.hidden_sizes, *config.critic_sizes])
-  return 4 * (4 * actor + 5 * critics + 8 * config.batch_size * widest * len(config.critic_sizes))
-
-
-def check_train_memory(env, config: SACConfig, seeds, points: int = 1) -> None:
-  """Estimate, per seed (and grid point): the networks (:func:`network_bytes`), the replay buffer (obs,
-  next obs, action, reward, discount in float32), the training env states (~2 copies) and the
-  evaluation episodes' env states (~4 copies, as hdt.transfer.evaluate counts them)."""
-  n = seeds if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool) else \
-      (len(seeds) if hasattr(seeds, "__len__") else 1)
-  if n <= 0:
-    return  # seed_list explains
-  n *= points
-  transition = 4 * (2 * env.observation_size + env.action_size + 2)
-  per_seed = (config.buffer_size * transition + network_bytes(env.observation_size, env.action_size, config)
-              + (2 * config.num_envs + 4 * config.num_eval_episodes) * state_bytes(env))
-  check_memory(n * per_seed, f"training {n} seeds (networks {list(config.hidden_sizes)}, replay buffer of "
-               f"{config.buffer_size}, {config.num_envs} env(s) and {config.num_eval_episodes} evaluation "
-               f"episodes per seed)",
-               "lower the number of seeds, hidden_sizes, buffer_size, num_envs or num_eval_episodes")
-
-
 def _seed_best(best: dict | None, i: int) -> tuple[dict, dict] | None:
   """(params, info) of seed ``i``'s best evaluation for :func:`ckpt.save`, None if it has none."""
   if best is None or best["env_steps"][i] < 0:
@@ -433,15 +374,14 @@ def _with_legacy_fields(saved: dict, legacy_meta: dict[str, dict]) -> dict:
 
 def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
   """``saved`` with the LL hashes of ``info`` where an LL it recorded (the HL's ``low``, the aligned
-  LL's imitated ``aligned_to``) is now a slim zoo copy of the same parameters (:func:`zoo.hash_aliases`):
+  LL's imitated ``aligned_to``) is now a slim zoo copy of the same parameters (:func:`hdt.transfer.names.hash_aliases`):
   slimming an entry is not retraining it."""
-  from hdt.transfer import zoo
   meta = dict(saved.get("meta") or {})
   for key in ("low", "aligned_to"):
     old, now = meta.get(key), (info.get("meta") or {}).get(key)
     if (isinstance(old, dict) and isinstance(now, dict) and old.get("sha256") != now.get("sha256")
         and old.get("path") == now.get("path") and isinstance(now.get("path"), str)
-        and old.get("sha256") in zoo.hash_aliases(now["path"], int(now.get("seed_index", 0)))):
+        and old.get("sha256") in names.hash_aliases(now["path"], int(now.get("seed_index", 0)))):
       meta[key] = dict(old, sha256=now["sha256"])
   return dict(saved, meta=meta)
 

@@ -18,90 +18,28 @@ from __future__ import annotations
 import contextlib
 import datetime
 import json
-import os
-import re
 import shutil
 from pathlib import Path
 
 import numpy as np
 import orbax.checkpoint as ocp
 
-import hdt
 from hdt import atomic
 from hdt.agents import normalizer
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import evaluate as ev
+from hdt.transfer import names, rundir
+from hdt.transfer.names import PREFIX, ZooError, check_name, entry_names, resolve
+from hdt.version import __version__
 
-ZOO_DIR = Path(__file__).resolve().parents[2] / "zoo"
-PREFIX = "zoo:"
 CHECK_EPISODES, CHECK_KEY = 8, 7  # per seed; the test suite replays every entry's check
 
 
-class ZooError(ValueError):
-  pass
-
-
-NAME = re.compile(r"[a-z0-9_]+(/[a-z0-9_]+)?")
-
-
-def check_name(name) -> str:
-  """``name`` if it is an entry name (one or two parts of ``[a-z0-9_]``, e.g. ``point/low``), else a
-  one-line ZooError: a name is never a path."""
-  if not isinstance(name, str) or not NAME.fullmatch(name):
-    raise ZooError(f"zoo name {name!r}: a name is one or two parts of lowercase letters, digits and '_' "
-                   f"joined by '/', e.g. point/low (see `hdt zoo`)")
-  return name
-
-
-def resolve(path):
-  """``zoo:NAME`` -> the entry's directory (inside ``zoo/``, never through a link out of it); any
-  other path is returned unchanged."""
-  if isinstance(path, (str, Path)) and str(path).startswith(PREFIX):  # argparse may give a Path
-    name = check_name(str(path)[len(PREFIX):])
-    d = ZOO_DIR / name
-    root = os.path.realpath(ZOO_DIR)
-    if not os.path.realpath(d).startswith(root + os.sep):
-      raise ZooError(f"zoo entry {name!r} points outside {ZOO_DIR}; restore it (git checkout -- zoo/{name})")
-    if not (d / "zoo.json").is_file():
-      raise ZooError(f"no zoo entry {name!r}; entries: {', '.join(names()) or '(none)'} (see `hdt zoo`)")
-    return d
-  return path
-
-
-def names() -> list[str]:
-  found = (str(p.parent.relative_to(ZOO_DIR)) for p in ZOO_DIR.glob("**/zoo.json"))
-  return sorted(n for n in found if NAME.fullmatch(n))
-
-
-def info_of(run) -> dict | None:
-  """The zoo.json of the entry ``run`` (a zoo name or an entry's directory), None for other runs."""
-  path = Path(resolve(str(run)) if str(run).startswith(PREFIX) else run) / "zoo.json"
-  try:
-    info = json.loads(path.read_text())
-  except (OSError, ValueError):
-    return None
-  return info if isinstance(info, dict) else None
-
-
-def recorded_hash(info: dict, seed: int) -> str | None:
-  """The content hash zoo.json records for seed ``seed`` of its entry (None if it records none)."""
-  for s in info.get("slim") or []:
-    if isinstance(s, dict) and s.get("seed") == seed and isinstance(s.get("sha256"), str):
-      return s["sha256"]
-  hashes = info.get("seed_sha256")
-  return hashes[seed] if isinstance(hashes, list) and 0 <= seed < len(hashes) and isinstance(hashes[seed], str) else None
-
-
-def recorded_low_hash(high) -> str | None:
-  """The content hash of the LL seed that the HL entry ``high`` composes with, as its zoo.json records."""
-  h = (info_of(high) or {}).get("low_sha256")
-  return h if isinstance(h, str) else None
-
-
 def entries() -> list[dict]:
-  return [json.loads((ZOO_DIR / n / "zoo.json").read_text()) for n in names()]
+  return [json.loads((names.ZOO_DIR / n / "zoo.json").read_text()) for n in entry_names()]
 
 
 def _evaluate(run: str, low: str | None, task: str, episodes: int, key: int, **task_kw) -> dict:
-  from hdt.transfer import evaluate as ev
   policy = ev.compose(run, low) if low else ev.load_policy(run)
   return _plain(ev.evaluate(policy, task, episodes=episodes, key=key, **task_kw))
 
@@ -132,8 +70,6 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   name, which its metadata then points to) and is evaluated on ``task`` (default: its own). Every
   argument is checked before anything is written; the entry is built in a hidden directory and moved
   into place in one rename (hdt.transfer.rundir.install), so a failed export leaves no trace."""
-  from hdt.transfer import checkpoint as ckpt
-  from hdt.transfer import rundir
   check_name(name)
   if isinstance(episodes, bool) or not isinstance(episodes, (int, np.integer)) or episodes <= 0:
     raise ZooError(f"episodes={episodes!r}: the evaluation recorded with the entry needs a positive number of "
@@ -144,7 +80,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
     if not (isinstance(low, str) and low.startswith(PREFIX)):
       raise ZooError(f"{run} is a high level: export its LL first and pass low='zoo:NAME'")
     resolve(low)
-  dest = ZOO_DIR / name
+  dest = names.ZOO_DIR / name
   if dest.exists() and not overwrite:
     raise ZooError(f"zoo entry {name!r} exists; pass overwrite=True (--overwrite) to replace it")
   rundir.check_claimable(dest, overwrite=overwrite, what="name", reads={"exported": run}, zoo_ok=True)
@@ -185,8 +121,7 @@ def _slim(entry: Path, level: str) -> list[dict]:
   """Drops from the copy ``entry`` (in place) what nothing loads from a zoo entry: an LL's final
   parameters when it has best ones, and all but ``POLICY_KEYS`` of an LL's and of any best. Returns per
   seed the content hash before and after, so that an HL trained over the full LL still composes with
-  the slim copy (:func:`hash_aliases`)."""
-  from hdt.transfer import checkpoint as ckpt  # it reads zoo names through resolve()
+  the slim copy (:func:`hdt.transfer.names.hash_aliases`)."""
   out = []
   for seed in ckpt.list_seeds(entry):
     before = ckpt.content_hash(entry, seed)
@@ -211,8 +146,7 @@ def reslim(name: str) -> dict:
   """Applies today's :func:`_slim` to an entry exported before it (in place), keeping the hashes its
   LL had, so HLs trained over any earlier copy still compose with it. Returns the new zoo.json; an LL
   entry's numbers must then be re-recorded (:func:`reevaluate`), as its default parameters changed."""
-  from hdt.transfer import checkpoint as ckpt
-  entry, path = ZOO_DIR / check_name(name), ZOO_DIR / name / "zoo.json"
+  entry, path = names.ZOO_DIR / check_name(name), names.ZOO_DIR / name / "zoo.json"
   info = json.loads(path.read_text())
   old = {s["seed"]: s for s in info.get("slim") or []}
   new = _slim(entry, info["level"])
@@ -231,23 +165,10 @@ def reslim(name: str) -> dict:
 
 def _record_hashes(entry: Path, hashes: list[dict]) -> None:
   """The entry's meta.json lists its seeds' content hashes as they are now (``hashes``: _slim's)."""
-  from hdt.transfer import checkpoint as ckpt
   path = entry / "meta.json"
   meta = json.loads(path.read_text())
-  meta[ckpt.SEED_HASHES] = [s["sha256"] for s in sorted(hashes, key=lambda s: s["seed"])]
+  meta[names.SEED_HASHES] = [s["sha256"] for s in sorted(hashes, key=lambda s: s["seed"])]
   ckpt.write_json_atomic(path, meta)
-
-
-def hash_aliases(low, seed: int) -> set[str]:
-  """Content hashes that name seed ``seed`` of the LL ``low`` as it is now: its own, plus, for a slim
-  zoo entry whose files are unchanged since it was slimmed, that of the full run it was exported from
-  and of its earlier zoo copies (:func:`reslim`)."""
-  from hdt.transfer import checkpoint as ckpt
-  now = ckpt.content_hash(low, seed)
-  d = resolve(str(low))
-  info = json.loads((Path(d) / "zoo.json").read_text()) if str(low).startswith(PREFIX) else {}
-  return {now} | {h for s in info.get("slim") or [] if s["seed"] == seed and s["sha256"] == now
-                  for h in [s["source_sha256"], *s.get("earlier_sha256", [])]}
 
 
 def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash=None):
@@ -257,7 +178,7 @@ def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slim
               budget=dict(total=sac.get("total_env_steps"),
                           unit="HL decisions" if meta["level"] == "high" else "env steps"),
               seeds=meta.get("seeds"), evaluation=full, check=check,
-              hdt_version=hdt.__version__, exported=datetime.date.today().isoformat(),
+              hdt_version=__version__, exported=datetime.date.today().isoformat(),
               seed_sha256=[s["sha256"] for s in sorted(slimmed, key=lambda s: s["seed"])])
   if meta["level"] == "low":
     info["slim"] = slimmed
@@ -270,12 +191,11 @@ def reevaluate(name: str, reason: str, episodes: int = 100, check_only: bool = F
   """Re-runs an entry's evaluation and check after a deliberate change of its env (``reason``), keeping
   the previous numbers under ``reevaluated``; ``check_only``: the check alone (e.g. after a change of
   ``CHECK_EPISODES``). Returns the new zoo.json."""
-  from hdt.transfer import checkpoint as ckpt
-  path = ZOO_DIR / check_name(name) / "zoo.json"
+  path = names.ZOO_DIR / check_name(name) / "zoo.json"
   info = json.loads(path.read_text())
   old = {k: info[k] for k in (("check",) if check_only else ("evaluation", "check"))}
   info["reevaluated"] = info.get("reevaluated", []) + [dict(date=datetime.date.today().isoformat(), reason=reason,
-                                                            hdt_version=hdt.__version__, previous=old)]
+                                                            hdt_version=__version__, previous=old)]
   if check_only:
     info["check"] = _check(PREFIX + name, info["low"], info["task"], info["task_options"])
   else:
@@ -287,7 +207,7 @@ def reevaluate(name: str, reason: str, episodes: int = 100, check_only: bool = F
 
 def recheck(name: str) -> tuple[dict, dict]:
   """(recorded, fresh) results of the entry's deterministic check evaluation."""
-  info = json.loads((ZOO_DIR / check_name(name) / "zoo.json").read_text())
+  info = json.loads((names.ZOO_DIR / check_name(name) / "zoo.json").read_text())
   c = info["check"]
   fresh = _evaluate(PREFIX + name, info["low"], info["task"], c["episodes"], c["key"], **info["task_options"])
   return c["result"], fresh

@@ -1,0 +1,71 @@
+"""Seeds x a hyper-parameter grid of one stage: every grid point writes its own run directory, as if
+trained alone, and the points whose configs differ only in vmappable values train together as one
+program (:func:`hdt.transfer.runner.run_points`)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from hdt.agents import discriminator, kl
+from hdt.agents.sac import SWEEPABLE
+from hdt.transfer.align import align_stage
+from hdt.transfer.finetune import check_kl, finetune_stage
+from hdt.transfer.pipeline import full_stage, high_stage, low_stage
+from hdt.transfer.runner import RunOptions, RunResult, run_points
+
+
+def sweep(level: str, runs: list[tuple], seeds=1, *, backend="auto", quiet=False, overwrite=False,
+          **stage) -> list[RunResult]:
+  """Trains each ``(config, out)`` or ``(config, out, weights)`` of ``runs`` at ``level`` ("low": agent=...,
+  "high": task=..., low=..., "full": agent=..., task=..., "finetune": high=..., low=..., task=...,
+  "align": agent=..., imitate=...; further keywords as train_low/train_high/train_full/finetune_stage/
+  align_stage). ``weights``: the values of the level's plug-in weights, ``{"kl_weight": beta}``
+  (finetune: the KL weight, ``kl``) or ``{"disc_weight": w0}`` (align: the discriminator's ``w_init``),
+  the same names for every run. Configs that differ only in fields of
+  :data:`hdt.agents.sac.SWEEPABLE` (learning rates, tau, gamma, reward scale, target entropy), whatever their weights,
+  train together, seeds and grid points as one vmapped program; the other groups (other network or
+  batch sizes, num_envs, ...) in turn. Every run directory is written as by train_* (its meta.json
+  records its weights). Returns the results in the order of ``runs``."""
+  setup = {"low": low_stage, "high": high_stage, "full": full_stage, "align": align_stage,
+           "finetune": lambda **kw: finetune_stage(seeds=seeds, **kw)}.get(level)
+  if setup is None:
+    raise ValueError(f"level={level!r}: sweep trains 'low', 'high', 'full', 'finetune' or 'align'")
+  runs = [(r[0], r[1], dict(r[2]) if len(r) > 2 else {}) for r in runs]
+  names = sorted(runs[0][2]) if runs else []
+  if any(sorted(w) != names for _, _, w in runs):
+    raise ValueError(f"sweep: every run needs values of the same weights, got {[sorted(w) for _, _, w in runs]}")
+  check_weights(level, [w for _, _, w in runs], stage)
+  groups: dict[tuple, list[int]] = {}
+  for i, (cfg, _, _) in enumerate(runs):
+    shape = tuple((k, v) for k, v in dataclasses.asdict(cfg).items() if k not in SWEEPABLE)
+    groups.setdefault(shape, []).append(i)
+  results: list[RunResult | None] = [None] * len(runs)
+  options = RunOptions(seeds, quiet=quiet, overwrite=overwrite)
+  for members in groups.values():
+    cfgs = [runs[i][0] for i in members]
+    varied = [k for k in SWEEPABLE if len({getattr(c, k) for c in cfgs}) > 1]
+    kw = dict(stage)
+    if level == "finetune" and kl.WEIGHT in names:  # the KL plug-in exists only for kl > 0
+      kw["kl"] = max(runs[i][2][kl.WEIGHT] for i in members) or 1.0
+    st = setup(config=cfgs[0], backend=backend, **kw)
+    points = [({k: getattr(runs[i][0], k) for k in varied} | runs[i][2], runs[i][1]) for i in members]
+    if len(points) > 1:
+      st = dataclasses.replace(st, label=f"{st.label} x{len(points)} points")
+    for i, r in zip(members, run_points(st, points, options)):
+      results[i] = r
+  return results
+
+
+WEIGHTS = {"finetune": (kl.WEIGHT,), "align": (discriminator.WEIGHT,)}  # the plug-in weights sweep can vary
+
+
+def check_weights(level: str, weights: list[dict], stage: dict) -> None:
+  """Refuses (one line) weights the level has no plug-in for, and values its stage would refuse."""
+  for w in weights:
+    unknown = set(w) - set(WEIGHTS.get(level, ()))
+    if unknown:
+      raise ValueError(f"sweep {level}: {sorted(unknown)} cannot be varied; vmappable: "
+                       f"{', '.join(SWEEPABLE + WEIGHTS.get(level, ()))}")
+    check_kl(w.get(kl.WEIGHT, 0.0), kl.WEIGHT)
+    if discriminator.WEIGHT in w:
+      dataclasses.replace(stage.get("disc", discriminator.DiscConfig()), w_init=w[discriminator.WEIGHT])  # checks [0, 1]
