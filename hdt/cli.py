@@ -965,10 +965,28 @@ def _exit_quietly(code: int) -> None:
   os._exit(code)
 
 
+def _is_noise(e: BaseException) -> bool:
+  """What orbax's asyncio writers still report from threads and C callbacks after a failed write
+  (the command's own one line says what failed)."""
+  return isinstance(e, RuntimeError) and str(e) == "Event loop is closed"
+
+
+def _quiet_library_noise() -> None:
+  import logging
+  import threading
+  logging.getLogger("absl").setLevel(logging.CRITICAL)  # orbax logs each failed writer thread with a traceback
+  if not getattr(sys.excepthook, "hdt", False):
+    shown, shown_in_thread = sys.excepthook, threading.excepthook
+    sys.excepthook = lambda kind, e, tb: None if _is_noise(e) else shown(kind, e, tb)
+    threading.excepthook = lambda a: None if _is_noise(a.exc_value) else shown_in_thread(a)
+    sys.excepthook.hdt = True
+
+
 def main(argv=None) -> int:
   """The ``hdt`` command; ``argv`` None: ``sys.argv``, and the process exits quietly on failure."""
   from hdt import interrupt
   interrupt.catch(bool(_EARLY_SIGINT))  # before the seconds of importing JAX: Ctrl-C is handled from the first instant
+  _quiet_library_noise()
   try:
     try:
       interrupt.raise_if_interrupted()

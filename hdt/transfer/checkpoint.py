@@ -137,6 +137,16 @@ def check_unchanged(run_dir: str | Path, seed_index: int) -> None:
                           f"(its content hash differs: its files were replaced, edited or damaged); {fix}")
 
 
+def record_seed_hashes(run_dir: str | Path) -> dict:
+  """Rewrites the run's meta.json with the content hashes of its seeds as they are now (after a
+  deliberate change of a checkpoint, e.g. slimming a zoo copy); returns it."""
+  path = Path(run_dir) / "meta.json"
+  meta = json.loads(path.read_text())
+  meta[SEED_HASHES] = [content_hash(run_dir, s) for s in list_seeds(run_dir)]
+  write_json_atomic(path, meta)
+  return meta
+
+
 def require(meta: dict, fields: dict[str, type | tuple], where: str | Path) -> dict:
   """``meta`` if each of ``fields`` is present with the given type(s), else a one-line CheckpointError."""
   for key, types in fields.items():

@@ -101,7 +101,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
           m["low"] = dict(m["low"], path=low, sha256=m["low"].get("sha256") or low_hash)
           ckpt.write_json_atomic(mp, m)
     slimmed = _slim(tmp, meta["level"])
-    _record_hashes(tmp, slimmed)
+    ckpt.record_seed_hashes(tmp)
     (tmp / "zoo.json").write_text("{}")  # an entry for the evaluations below (as ckpt.load sees it)
     full, check = _numbers(str(tmp), low, task, episodes, task_kw)
     _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash)
@@ -158,17 +158,9 @@ def reslim(name: str) -> dict:
       s["earlier_sha256"] = sorted(set(earlier) - {s["source_sha256"], s["sha256"]})
     info["slim"] = new
   info["seed_sha256"] = [s["sha256"] for s in new]
-  _record_hashes(entry, new)
+  ckpt.record_seed_hashes(entry)
   ckpt.write_json_atomic(path, info)
   return info
-
-
-def _record_hashes(entry: Path, hashes: list[dict]) -> None:
-  """The entry's meta.json lists its seeds' content hashes as they are now (``hashes``: _slim's)."""
-  path = entry / "meta.json"
-  meta = json.loads(path.read_text())
-  meta[names.SEED_HASHES] = [s["sha256"] for s in sorted(hashes, key=lambda s: s["seed"])]
-  ckpt.write_json_atomic(path, meta)
 
 
 def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash=None):
