@@ -83,6 +83,7 @@ from hdt.cache import enable_compile_cache  # noqa: E402
 from hdt.transfer import checkpoint as ckpt  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
 from hdt.transfer import pipeline  # noqa: E402
+from hdt.transfer.runner import RunOptions  # noqa: E402
 
 import time_to_quality as ttq  # noqa: E402
 
@@ -138,8 +139,8 @@ def ensure_low(low_dir: str, log) -> dict:
   if not os.path.exists(os.path.join(low_dir, "meta.json")):
     log(f"== training the frozen point-mass LL into {low_dir} ({LOW_CONFIG['total_env_steps']} env steps)")
     t = time.perf_counter()
-    pipeline.train_low("point", configs.low_config("point", **LOW_CONFIG), seeds=[0], out=low_dir,
-                       quiet=True)
+    pipeline.train_low("point", configs.low_config("point", **LOW_CONFIG),
+                       options=RunOptions(seeds=[0], out=low_dir, quiet=True))
     log(f"   LL trained in {time.perf_counter() - t:.0f}s (in neither clock)")
   with open(os.path.join(low_dir, "config.json")) as f:
     cfg = json.load(f)

@@ -41,8 +41,10 @@ from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import rundir
 from hdt.transfer import configs
 from hdt.transfer.evaluate import compose, evaluate, load_policy
-from hdt.transfer.finetune import finetune_high
-from hdt.transfer.pipeline import RunResult, train_full, train_high, train_low
+from hdt.transfer.align import AlignSpec
+from hdt.transfer.finetune import FinetuneSpec, finetune_high
+from hdt.transfer.pipeline import train_full, train_high, train_low
+from hdt.transfer.runner import RunOptions, RunResult
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -116,10 +118,11 @@ def low(agent: str, pr: dict, out: Path, seeds: int, quiet: bool, name: str | No
   name = name or f"{agent}_low" + (f"_aligned_{imitate.meta['agent']}" if imitate else "")
   kw, expect = dict(env_overrides), {"env_overrides": env_overrides}
   if imitate is not None:
-    kw |= dict(imitate=imitate.run_dir, disc=configs.disc_config(imitate.meta["agent"]))
-    expect |= {"discriminator": dataclasses.asdict(kw["disc"])}
+    disc = configs.disc_config(imitate.meta["agent"])
+    kw |= dict(imitate=AlignSpec(imitate.run_dir, disc))
+    expect |= {"discriminator": dataclasses.asdict(disc)}
   return reuse_or_train(out / name, cfg, seeds, expect=expect, train=lambda: train_low(
-      agent, cfg, seeds=seeds, out=out / name, quiet=quiet, **kw))
+      agent, cfg, options=RunOptions(seeds=seeds, out=out / name, quiet=quiet), **kw))
 
 
 def high(task: str, low_run: RunResult, pr: dict, out: Path, seeds: int, quiet: bool,
@@ -129,7 +132,7 @@ def high(task: str, low_run: RunResult, pr: dict, out: Path, seeds: int, quiet: 
   cfg = high_cfg(task, steps, pr)
   name = name or f"{low_run.meta['agent']}_high_{task}"
   return reuse_or_train(out / name, cfg, seeds, expect={"task_overrides": task_kw}, train=lambda: train_high(
-      task, low_run.run_dir, cfg, seeds=seeds, out=out / name, quiet=quiet, **task_kw))
+      task, low_run.run_dir, cfg, options=RunOptions(seeds=seeds, out=out / name, quiet=quiet), **task_kw))
 
 
 def score(ev: dict) -> dict:
@@ -271,8 +274,8 @@ METHODS = {"finetune_kl": "finetune KL", "finetune": "finetune", "scratch": "HL 
 @dataclasses.dataclass(frozen=True)
 class FinetuneStudy:
   """A's HL transferred to B's LL on ``task``, then trained further on B by each of ``methods``:
-  ``finetune_kl`` (``finetune_high(kl=beta)``, beta and lr from :func:`configs.finetune_params`),
-  ``finetune`` (kl=0), ``scratch`` (``train_high`` on B's LL) and ``full`` (flat SAC on B)."""
+  ``finetune_kl`` (``finetune_high`` at the task's KL weight and lr, :func:`configs.finetune_params`),
+  ``finetune`` (kl_weight=0), ``scratch`` (``train_high`` on B's LL) and ``full`` (flat SAC on B)."""
 
   name: str  # experiment name: results/<name>_<preset>.json, .png and the CSV directory
   a: str  # A's agent
@@ -303,18 +306,19 @@ def finetune_study(st: FinetuneStudy, preset: str, pr: dict, out: Path, seeds: i
 
   def finetuned(kl):
     name = f"{st.b}_ft{'_kl' if kl else ''}_{task}"
-    return reuse_or_train(out / name, ft_cfg, seeds, expect={"kl": kl, "task_overrides": tkw},
-                          train=lambda: finetune_high(a_high.run_dir, b_low.run_dir, task, kl=kl,
-                                                      config=ft_cfg, seeds=seeds, out=out / name,
-                                                      quiet=quiet, **tkw))
+    return reuse_or_train(out / name, ft_cfg, seeds, expect={"kl_weight": kl, "task_overrides": tkw},
+                          train=lambda: finetune_high(a_high.run_dir, b_low.run_dir, task, ft_cfg,
+                                                      spec=FinetuneSpec(kl_weight=kl),
+                                                      options=RunOptions(seeds=seeds, out=out / name, quiet=quiet),
+                                                      **tkw))
 
   def full():
     cfg = full_cfg(st.b, task, ft_cfg.total_env_steps * k, pr)  # as many B samples as the HL methods
     name = f"{st.b}_full_{task}"
     return reuse_or_train(out / name, cfg, seeds, expect={"env_overrides": tkw}, train=lambda: train_full(
-        st.b, task, cfg, seeds=seeds, out=out / name, quiet=quiet, **tkw))
+        st.b, task, cfg, options=RunOptions(seeds=seeds, out=out / name, quiet=quiet), **tkw))
 
-  train = {"finetune_kl": lambda: finetuned(hp["kl"]), "finetune": lambda: finetuned(0.0),
+  train = {"finetune_kl": lambda: finetuned(hp["kl_weight"]), "finetune": lambda: finetuned(0.0),
            "scratch": lambda: high(task, b_low, pr, out, seeds, quiet, steps=ft_cfg.total_env_steps,
                                    name=f"{st.b}_scratch_{task}", **tkw),
            "full": full}
@@ -334,7 +338,7 @@ def finetune_study(st: FinetuneStudy, preset: str, pr: dict, out: Path, seeds: i
                         title=st.title or f"{st.a} HL -> {st.b} {task} ({preset} preset)",
                         xlabel=f"env steps of B ({st.b})", ylabel=zero["metric"])
   return dict(experiment=st.name, preset=preset, command=command(st.name, preset), seeds=seeds,
-              a=st.a, b=st.b, task=task, task_kw=tkw, k=k, budget=pr, kl=hp["kl"], lr=hp["lr"],
+              a=st.a, b=st.b, task=task, task_kw=tkw, k=k, budget=pr, kl=hp["kl_weight"], lr=hp["lr"],
               hl_steps=ft_cfg.total_env_steps, b_env_steps=ft_cfg.total_env_steps * k,
               zero_shot=zero, methods=methods, png=str(png), minutes=minutes)
 

@@ -11,6 +11,8 @@ _EXPORTS = {
     "use_cpu_cores": "hdt.agents.sharding",
     "train_low": "hdt.transfer.pipeline", "train_high": "hdt.transfer.pipeline", "train_full": "hdt.transfer.pipeline",
     "finetune_high": "hdt.transfer.finetune",
+    "RunOptions": "hdt.transfer.runner", "LowRef": "hdt.transfer.card", "AlignSpec": "hdt.transfer.align",
+    "FinetuneSpec": "hdt.transfer.finetune",
     "compose": "hdt.transfer.evaluate", "evaluate": "hdt.transfer.evaluate",
     "random_actions": "hdt.transfer.evaluate", "zero_shot_matrix": "hdt.transfer.evaluate",
     "trajectory": "hdt.transfer.evaluate",

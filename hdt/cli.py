@@ -5,7 +5,7 @@
   hdt train high --task waypoint --low RUN        HL SAC over a frozen LL
   hdt train full --agent ant --task maze          flat SAC baseline
   hdt align --agent arm3 --imitate RUN            LL aligned to another agent's LL (discriminator)
-  hdt finetune --high RUN --low RUN --task push1 --kl 1.0
+  hdt finetune --high RUN --low RUN --task push1 --kl-weight 1.0
   hdt eval --high RUN --low RUN --task waypoint   (repeat --high/--low NAME=RUN for a matrix)
   hdt sweep low --agent point --grid actor_lr=1e-4,3e-4
   hdt sweep finetune --high RUN --low RUN --task waypoint --grid kl_weight=0,1,10
@@ -232,10 +232,10 @@ def build_parser() -> argparse.ArgumentParser:
   ft.add_argument("--high", required=True, type=Path, help="HL run directory of agent A")
   ft.add_argument("--low", required=True, type=Path, help="LL run directory of agent B")
   ft.add_argument("--task", required=True)
-  ft.add_argument("--kl", type=float, default=None,
-                  help="initial KL weight beta; 0 = plain finetuning (default: the task's, as the paper: 1 for "
-                       "Waypoint and manipulation, 0.01 for Maze and Steps)")
-  ft.add_argument("--anneal-frac", type=float, default=0.5, help="beta reaches 0 after this fraction")
+  ft.add_argument("--kl-weight", "--kl", type=float, default=None, dest="kl_weight",
+                  help="initial weight of the KL term (the paper's beta); 0 = plain finetuning (default: the "
+                       "task's, as the paper: 1 for Waypoint and manipulation, 0.01 for Maze and Steps)")
+  ft.add_argument("--anneal-frac", type=float, default=0.5, help="the KL weight reaches 0 after this fraction")
   ft.add_argument("--mode", choices=("forward", "reverse"), default="forward", help="KL direction")
   ft.add_argument("--mean-only", action="store_true", help="tie only the means: the squared distance of the pre-tanh means (the authors' kl_type=mean)")
   ft.add_argument("--lr", type=float, default=None,
@@ -275,7 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
   sw.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2,...",
                   help="SAC field (or kl_weight for finetune, disc_weight for align) and its values "
                        "(repeatable; the grid is their product)")
-  sw.add_argument("--anneal-frac", type=float, default=0.5, help="finetune: beta reaches 0 after this fraction")
+  sw.add_argument("--anneal-frac", type=float, default=0.5,
+                  help="finetune: the KL weight reaches 0 after this fraction")
   sw.add_argument("--mode", choices=("forward", "reverse"), default="forward", help="finetune: KL direction")
   sw.add_argument("--mean-only", action="store_true", help="finetune: tie only the means")
   sw.add_argument("--reference-params", choices=("best", "final"), default="best",
@@ -355,8 +356,10 @@ def _out_dir(args, name: str, kind: str = "run", reuse: bool = False, reads=(), 
   return out
 
 
-def _run_kw(args) -> dict:
-  return {"resume": True} if args.resume else {"overwrite": True} if args.overwrite else {}
+def _options(args, out: Path, seeds: int):
+  """The RunOptions of a training command (hdt.transfer.runner)."""
+  from hdt.transfer.runner import RunOptions
+  return RunOptions(seeds=seeds, out=out, quiet=args.quiet, resume=bool(args.resume), overwrite=bool(args.overwrite))
 
 
 def sac_config(args, level: str, agent=None, task=None, **extra) -> SACConfig:
@@ -398,8 +401,8 @@ def _finish(res, args):
 
 
 def cmd_train(args) -> int:
-  from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import pipeline
+  from hdt.transfer.card import LowRef
   overrides = _key_values(args.set, "--set")
   pipeline.check_env_overrides(overrides, getattr(args, "agent", None), getattr(args, "task", None) or "reach")
   seeds = _seeds(args)
@@ -407,8 +410,7 @@ def cmd_train(args) -> int:
     _check_agent_task(args.agent)
     cfg = sac_config(args, "low", args.agent)
     out = _out_dir(args, f"low-{_label(args.agent)}")
-    res = pipeline.train_low(args.agent, cfg, seeds=seeds, out=out, backend=args.backend, quiet=args.quiet,
-                             **_run_kw(args), **overrides)
+    res = pipeline.train_low(args.agent, cfg, backend=args.backend, options=_options(args, out, seeds), **overrides)
   elif args.level == "high":
     _check_agent_task(task=args.task)
     low_meta = pipeline.load_low(args.low, args.low_seed)[1]  # checked to be a usable LL
@@ -417,21 +419,19 @@ def cmd_train(args) -> int:
     overrides = configs.task_options(args.preset, args.task) | overrides
     cfg = sac_config(args, "high", task=args.task)
     out = _out_dir(args, f"high-{args.task}-{_label(low_meta['agent'])}", reads={"low": args.low})
-    res = pipeline.train_high(args.task, args.low, cfg, seeds=seeds, out=out, backend=args.backend,
-                              low_seed=args.low_seed, k=args.k, quiet=args.quiet, low_params=args.low_params,
-                              **_run_kw(args), **overrides)
+    res = pipeline.train_high(args.task, LowRef(args.low, args.low_seed, args.low_params), cfg, k=args.k,
+                              backend=args.backend, options=_options(args, out, seeds), **overrides)
   else:
     _check_agent_task(args.agent, args.task)
     cfg = sac_config(args, "full", args.agent, args.task)
     out = _out_dir(args, f"full-{_label(args.agent)}-{args.task}")
-    res = pipeline.train_full(args.agent, args.task, cfg, seeds=seeds, out=out, backend=args.backend,
-                              quiet=args.quiet, **_run_kw(args), **overrides)
+    res = pipeline.train_full(args.agent, args.task, cfg, backend=args.backend, options=_options(args, out, seeds),
+                              **overrides)
   return _finish(res, args)
 
 
 def cmd_align(args) -> int:
-  from hdt.transfer import checkpoint as ckpt
-  from hdt.transfer.align import align_low
+  from hdt.transfer.align import AlignSpec, align_low
   _check_agent_task(args.agent)
   from hdt.transfer.pipeline import check_env_overrides, load_low
   imitate_meta = load_low(args.imitate)[1]  # fails early, with the checkpoint's own message
@@ -440,9 +440,9 @@ def cmd_align(args) -> int:
   cfg = sac_config(args, "low", args.agent)
   out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate_meta['agent'])}",
                  reads={"imitate": args.imitate})
-  res = align_low(args.agent, args.imitate, cfg, disc=disc, seeds=_seeds(args), out=out, n_offline=args.n_offline,
-                  backend=args.backend, quiet=args.quiet, imitate_params=args.imitate_params,
-                  **_run_kw(args), **_key_values(args.set, "--set"))
+  spec = AlignSpec(args.imitate, disc, n_offline=args.n_offline, imitate_params=args.imitate_params)
+  res = align_low(args.agent, spec, cfg, backend=args.backend, options=_options(args, out, _seeds(args)),
+                  **_key_values(args.set, "--set"))
   return _finish(res, args)
 
 
@@ -451,27 +451,31 @@ def _a_sac(a_meta: dict) -> dict:
   return dict(hidden_sizes=tuple(a_meta["hidden_sizes"]), value_net=bool(a_meta.get("sac", {}).get("value_net", False)))
 
 
+def _finetune_spec(args):
+  """The FinetuneSpec of `hdt finetune` / `hdt sweep finetune` (checked field by field when made)."""
+  from hdt.transfer.finetune import FinetuneSpec
+  return FinetuneSpec(kl_weight=getattr(args, "kl_weight", None), anneal_frac=args.anneal_frac, mode=args.mode,
+                      mean_only=args.mean_only, lr=getattr(args, "lr", None), reference_params=args.reference_params,
+                      learning_starts=None if args.learning_starts is not None else 0,  # the authors': 0
+                      ).for_task(args.task)  # the paper's KL weight of the task unless given
+
+
 def cmd_finetune(args) -> int:
   from hdt.transfer import checkpoint as ckpt
-  from hdt.transfer.finetune import check_anneal_frac, finetune_high
-  _check_agent_task(task=args.task)
-  check_anneal_frac(args.anneal_frac)
+  from hdt.transfer.card import LowRef, PolicyCard
+  from hdt.transfer.finetune import finetune_high
   from hdt.transfer.pipeline import check_env_overrides, load_low
+  _check_agent_task(task=args.task)
+  spec = _finetune_spec(args)
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
-  from hdt.transfer.card import PolicyCard
   hm = ckpt.load_meta(args.high)
   PolicyCard.from_json(hm, args.high)  # every field of its type, before its hidden sizes are used
   lm = load_low(args.low, args.low_seed)[1]
   cfg = sac_config(args, "finetune", task=args.task, **_a_sac(hm))  # the task's finetuning lr unless set
-  kl = configs.finetune_params(args.task)["kl"] if args.kl is None else args.kl  # the paper's beta of the task
-  out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{kl:g}",
+  out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{spec.kl_weight:g}",
                  reads={"high": args.high, "low": args.low})
-  res = finetune_high(args.high, args.low, args.task, kl=kl, config=cfg, seeds=_seeds(args), out=out,
-                      anneal_frac=args.anneal_frac, mode=args.mode, mean_only=args.mean_only,
-                      backend=args.backend, quiet=args.quiet, lr=args.lr, low_seed=args.low_seed,
-                      low_params=args.low_params, reference_params=args.reference_params,
-                      learning_starts=None if args.learning_starts is not None else 0,  # the authors': 0
-                      **_run_kw(args),
+  res = finetune_high(args.high, LowRef(args.low, args.low_seed, args.low_params), args.task, cfg, spec=spec,
+                      backend=args.backend, options=_options(args, out, _seeds(args)),
                       **(configs.task_options(args.preset, args.task) | _key_values(args.set, "--set")))
   return _finish(res, args)
 
@@ -582,6 +586,7 @@ def cmd_sweep(args) -> int:
   from hdt import atomic
   from hdt.report import markdown_table
   from hdt.transfer import pipeline, rundir, sweep
+  from hdt.transfer.align import AlignSpec
   fields = {f.name: f for f in dataclasses.fields(SACConfig)}
   weights = sweep.WEIGHTS.get(args.level, ())  # the level's plug-in weights (kl_weight, disc_weight)
   grid = {}
@@ -613,8 +618,8 @@ def cmd_sweep(args) -> int:
   if args.level == "finetune" and not args.high:
     raise CLIError("sweep finetune needs --high RUN (A's HL)")
   if args.level == "finetune":
-    from hdt.transfer.finetune import check_anneal_frac
-    check_anneal_frac(args.anneal_frac)
+    _check_agent_task(task=args.task)
+    _finetune_spec(args)  # checked before anything is written
   if args.level == "align" and not args.imitate:
     raise CLIError("sweep align needs --imitate RUN (A's LL)")
   _check_agent_task(args.agent, args.task)
@@ -628,8 +633,9 @@ def cmd_sweep(args) -> int:
   if args.level == "finetune":
     from hdt.transfer.finetune import load_high
     load_high(args.high)  # checked to be an HL
-  disc = {"disc": _disc(args, pipeline.load_low(args.imitate)[1]["agent"])} if args.level == "align" else {}
-  sweep.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], disc)
+  disc = _disc(args, pipeline.load_low(args.imitate)[1]["agent"]) if args.level == "align" else None
+  imitate = {"imitate": AlignSpec(args.imitate, disc)} if disc is not None else {}
+  sweep.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], imitate)
   with rundir.claim(root, "sweep", overwrite=args.overwrite, reads=reads):
     rows = _sweep(args, grid, root, seeds, overrides, disc)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
@@ -638,12 +644,15 @@ def cmd_sweep(args) -> int:
   return 0
 
 
-def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc: dict) -> list:
+def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> list:
   import numpy as np
   from hdt.envs.tasks import get_task
   from hdt.report import fmt
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import sweep
+  from hdt.transfer.align import AlignSpec
+  from hdt.transfer.card import LowRef
+  from hdt.transfer.runner import RunOptions
   level = {"align": "low"}.get(args.level, args.level)  # of the SAC config
   extra = {}
   if args.level == "finetune":  # as `hdt finetune`, and the preset's task options
@@ -657,16 +666,17 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc: dict
     sac = {k: v for k, v in point.items() if k not in weights}
     runs.append((sac_config(args, level, args.agent, args.task if level != "low" else None, **extra, **sac),
                  root / names[-1].replace("/", "_"), weights))
-  low = dict(low=args.low, low_seed=args.low_seed, low_params=args.low_params)
-  stage = {"low": lambda: dict(agent=args.agent), "high": lambda: dict(task=args.task, **low),
+  low = LowRef(args.low, args.low_seed, args.low_params) if args.low is not None else None
+  stage = {"low": lambda: dict(agent=args.agent), "high": lambda: dict(task=args.task, low=low),
            "full": lambda: dict(agent=args.agent, task=args.task),
-           "finetune": lambda: dict(high=args.high, task=args.task, anneal_frac=args.anneal_frac, mode=args.mode,
-                                    mean_only=args.mean_only, reference_params=args.reference_params, **low),
-           "align": lambda: dict(agent=args.agent, imitate=args.imitate, n_offline=args.n_offline,
-                                 imitate_params=args.imitate_params, **disc)}[args.level]()
+           "finetune": lambda: dict(high=args.high, low=low, task=args.task, spec=_finetune_spec(args)),
+           "align": lambda: dict(agent=args.agent, imitate=AlignSpec(args.imitate, disc, n_offline=args.n_offline,
+                                                                      imitate_params=args.imitate_params))
+           }[args.level]()
   # points differing only in SWEEPABLE fields (learning rates, tau, gamma, reward scale, target entropy)
   # or the plug-in weights train as one vmapped program
-  results = sweep.sweep(args.level, runs, seeds, backend=args.backend, quiet=args.quiet, **stage, **overrides)
+  options = RunOptions(seeds=seeds, quiet=args.quiet)  # each grid point's run is new: the sweep was claimed whole
+  results = sweep.sweep(args.level, runs, backend=args.backend, options=options, **stage, **overrides)
   metric = get_task(args.task if level != "low" else "reach").headline_column
   rows = []
   for name, (_, out, _), res in zip(names, runs, results):
@@ -777,13 +787,15 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   from hdt.transfer import zoo
   from hdt.transfer.evaluate import compose, evaluate, random_actions
   from hdt.transfer.pipeline import train_high, train_low
+  from hdt.transfer.runner import RunOptions
   small = args.preset == "smoke"
   pm = dict(total_env_steps=2000 if small else 20_000, num_envs=8, updates_per_step=8,
             steps_per_chunk=25 if small else 250)
-  low = train_low("point", configs.low_config("point", **pm), seeds=seeds, out=root / "pm_low", quiet=quiet)
+  low = train_low("point", configs.low_config("point", **pm),
+                  options=RunOptions(seeds=seeds, out=root / "pm_low", quiet=quiet))
   hl = dict(pm, total_env_steps=400 if small else 8000, steps_per_chunk=25 if small else 100)
-  high = train_high("waypoint", low.run_dir, configs.high_config("waypoint", **hl), seeds=seeds,
-                    out=root / "pm_high", quiet=quiet)
+  high = train_high("waypoint", low.run_dir, configs.high_config("waypoint", **hl),
+                    options=RunOptions(seeds=seeds, out=root / "pm_high", quiet=quiet))
   episodes = 4 if small else 50
   own = evaluate(compose(high.run_dir, low.run_dir), "waypoint", episodes=episodes)
   print(f"\n1. Trained here: point-mass LL ({pm['total_env_steps']} steps) and Waypoint HL "

@@ -21,9 +21,11 @@ def point_low(tmp_path_factory):
   """A point-mass LL that reaches its goals (4k env steps: goal distance 4.1 -> 0.4)."""
   from hdt.transfer import configs
   from hdt.transfer.pipeline import train_low
+  from hdt.transfer.runner import RunOptions
   cfg = configs.low_config("point", total_env_steps=POINT_LOW_STEPS, num_envs=8, updates_per_step=8,
                            steps_per_chunk=125, num_eval_episodes=16)
-  return train_low("point", cfg, seeds=1, out=tmp_path_factory.mktemp("shared") / "point_low", quiet=True)
+  out = tmp_path_factory.mktemp("shared") / "point_low"
+  return train_low("point", cfg, options=RunOptions(seeds=1, out=out, quiet=True))
 
 
 @pytest.fixture(scope="session")
@@ -31,7 +33,8 @@ def point_high(point_low, tmp_path_factory):
   """A waypoint HL over :func:`point_low` (4k HL decisions)."""
   from hdt.transfer import configs
   from hdt.transfer.pipeline import train_high
+  from hdt.transfer.runner import RunOptions
   cfg = configs.high_config("waypoint", total_env_steps=POINT_HIGH_STEPS, num_envs=8, updates_per_step=8,
                             steps_per_chunk=POINT_HIGH_STEPS // 8, num_eval_episodes=8)
-  return train_high("waypoint", point_low.run_dir, cfg, seeds=1,
-                    out=tmp_path_factory.mktemp("shared") / "point_high", quiet=True)
+  out = tmp_path_factory.mktemp("shared") / "point_high"
+  return train_high("waypoint", point_low.run_dir, cfg, options=RunOptions(seeds=1, out=out, quiet=True))

@@ -14,8 +14,9 @@ from hdt.agents import discriminator as D
 from hdt.agents.replay import Transition
 from hdt.transfer import configs
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer.align import align_low, collect_offline, load_discriminator
+from hdt.transfer.align import AlignSpec, align_low, collect_offline, load_discriminator
 from hdt.transfer.pipeline import load_low, train_low
+from hdt.transfer.runner import RunOptions
 
 
 def _taus(rng, n, speed, z=True):
@@ -62,7 +63,7 @@ def test_discriminator_separates_distributions():
 
 def test_reward_matches_authors_formula():
   """(1-w) r + [step > 200] w clip(-2 log(D + 1e-6), 0, 10), w = max(w0 (1 - step/T), 0.1)."""
-  cfg = D.DiscConfig(w_init=0.3)
+  cfg = D.DiscConfig(weight=0.3)
   r = np.array([1.0, -2.0, 0.5, 3.0, 0.0], np.float32)
   logit = np.array([-20.0, -3.0, 0.0, 2.0, 9.0], np.float32)  # D from ~0 (clipped bonus) to ~1
   total = 10_000
@@ -77,12 +78,12 @@ def test_reward_matches_authors_formula():
   w = lambda s, c=cfg: float(D.reward_weight(c, s, 1000))
   assert w(0) == pytest.approx(0.3) and w(500) == pytest.approx(0.15) and w(700) == pytest.approx(0.1)
   assert w(999) == pytest.approx(0.1)
-  assert w(500, D.DiscConfig(w_init=0.3, w_decay=False)) == pytest.approx(0.3)
+  assert w(500, D.DiscConfig(weight=0.3, w_decay=False)) == pytest.approx(0.3)
 
 
 def test_reward_fn_uses_env_step_counter():
   """The plug-in's reward_fn (what the SAC update calls on sampled batches) matches the reference."""
-  cfg = D.DiscConfig(w_init=0.4, data="fixed")
+  cfg = D.DiscConfig(weight=0.4, data="fixed")
   rng = np.random.default_rng(3)
   al = D.make_alignment(cfg, _taus(rng, 64, 0.1), total_env_steps=1000, num_envs=4)
   aux = al.aux_init(jax.random.PRNGKey(0))
@@ -207,12 +208,12 @@ def test_collect_offline_gives_goal_space_taus(point_low):
 def test_align_low_end_to_end_and_meta(point_low, tmp_path):
   cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=100, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  res = align_low("point", imitate=point_low.run_dir, config=cfg, disc=D.DiscConfig(buffer_size=500, data="fixed"),
-                  seeds=1, out=tmp_path / "aligned", n_offline=256, quiet=True)
+  spec = AlignSpec(point_low.run_dir, D.DiscConfig(buffer_size=500, data="fixed"), n_offline=256)
+  res = align_low("point", spec, cfg, options=RunOptions(seeds=1, out=tmp_path / "aligned", quiet=True))
   meta = json.loads((tmp_path / "aligned" / "meta.json").read_text())
   assert meta["level"] == "low" and meta["aligned_to"]["agent"] == "point"
-  assert meta["aligned_to"]["path"] == str(point_low.run_dir) and meta["discriminator"]["w_init"] == 0.3
-  w = res.history["disc/w"]
+  assert meta["aligned_to"]["path"] == str(point_low.run_dir) and meta["discriminator"]["weight"] == 0.3
+  w = res.history["disc/weight"]
   assert w.shape == (1, 1) and 0.1 < w[0, 0] < 0.3  # chunk mean of the annealed weight
   assert meta["discriminator"]["data"] == "fixed" and meta["aligned_to"]["n_offline"] == 256
   assert np.all(np.isfinite(res.history["disc/loss"]))
@@ -246,9 +247,8 @@ def test_align_low_online_runs_and_a_follows_b_goals(point_low, tmp_path, monkey
   # B's LL episodes last 20 steps (A's 32, the README's --discrim-time-limit), so B's new goals drive A's restarts
   cfg = configs.low_config("point", total_env_steps=200, num_envs=4, steps_per_chunk=50, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  res = align_low("point", imitate=point_low.run_dir, config=cfg, seeds=1, out=tmp_path / "online",
-                  disc=D.DiscConfig(data="online", buffer_size=500, update_every=1), quiet=True,
-                  ll_horizon=20)
+  spec = AlignSpec(point_low.run_dir, D.DiscConfig(data="online", buffer_size=500, update_every=1))
+  res = align_low("point", spec, cfg, options=RunOptions(seeds=1, out=tmp_path / "online", quiet=True), ll_horizon=20)
   assert np.all(np.isfinite(res.history["disc/loss"]))
   meta = json.loads((tmp_path / "online" / "meta.json").read_text())
   assert meta["discriminator"]["data"] == "online" and meta["aligned_to"]["n_offline"] == 0
@@ -280,8 +280,9 @@ def _alongside_state(imitate, tmp_path, data, agent="point", **disc_kw):
   from hdt.transfer import checkpoint as ck
   cfg = configs.low_config(agent, total_env_steps=240, num_envs=4, steps_per_chunk=60, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  align_low(agent, imitate=getattr(imitate, "run_dir", imitate), config=cfg, seeds=1, out=tmp_path / data,
-            quiet=True, disc=D.DiscConfig(data=data, buffer_size=500, update_every=1, **disc_kw), ll_horizon=50)
+  spec = AlignSpec(getattr(imitate, "run_dir", imitate),
+                   D.DiscConfig(data=data, buffer_size=500, update_every=1, **disc_kw))
+  align_low(agent, spec, cfg, options=RunOptions(seeds=1, out=tmp_path / data, quiet=True), ll_horizon=50)
   info = ck.load_state_info(tmp_path / data)
   arrays = ocp.PyTreeCheckpointer().restore(ck.state_dir(tmp_path / data).resolve() / "arrays")
   return {name: np.asarray(arrays["state"][f"{i:05d}"])[0] for i, (name, _, _) in enumerate(info["leaves"])}
@@ -330,7 +331,7 @@ def test_expert_prev_obs_post_restart_begins_a_row_afresh_after_a_own_restart(po
 
 def test_align_low_rejects_other_goal_space(point_low):
   with pytest.raises(ValueError, match="goal spaces differ"):
-    align_low("arm3", imitate=point_low.run_dir, quiet=True)
+    align_low("arm3", imitate=point_low.run_dir, options=RunOptions(quiet=True))
 
 
 def _energy_distance(x, y):
@@ -349,11 +350,12 @@ def test_alignment_moves_b_taus_towards_a(tmp_path):
   small = lambda steps: configs.low_config(
       "point", total_env_steps=steps, num_envs=8, updates_per_step=8, steps_per_chunk=steps // 8,
       batch_size=64, buffer_size=5000, hidden_sizes=(32, 32), num_eval_episodes=2)
-  a = train_low("point", small(3000), seeds=1, out=tmp_path / "a", quiet=True)
-  plain = train_low("point", small(4000), seeds=1, out=tmp_path / "plain", quiet=True, gear_scale=3.0)
-  aligned = train_low("point", small(4000), seeds=1, out=tmp_path / "al", quiet=True, gear_scale=3.0,
-                      imitate=a.run_dir, disc=D.DiscConfig(w_init=0.5, w_decay=False, lr=1e-3, buffer_size=5000,
-                                                           data="fixed"))
+  a = train_low("point", small(3000), options=RunOptions(seeds=1, out=tmp_path / "a", quiet=True))
+  plain = train_low("point", small(4000), options=RunOptions(seeds=1, out=tmp_path / "plain", quiet=True),
+                    gear_scale=3.0)
+  disc = D.DiscConfig(weight=0.5, w_decay=False, lr=1e-3, buffer_size=5000, data="fixed")
+  aligned = train_low("point", small(4000), imitate=AlignSpec(a.run_dir, disc),
+                      options=RunOptions(seeds=1, out=tmp_path / "al", quiet=True), gear_scale=3.0)
   taus = {n: collect_offline(r.run_dir, 1024, jax.random.PRNGKey(5), num_envs=64, include_z=False) / 4.0
           for n, r in [("a", a), ("plain", plain), ("aligned", aligned)]}
   e_plain, e_aligned = (_energy_distance(taus[n], taus["a"]) for n in ("plain", "aligned"))
@@ -375,8 +377,8 @@ def test_align_imitates_a_best_by_default(point_low, tmp_path, monkeypatch):
     got = {}
     monkeypatch.setattr(al, "_policy_inputs", lambda *a_, **k: got.update(tau=real_inputs(*a_, **k)) or got["tau"])
     monkeypatch.setattr(al, "run_stage", lambda stage, options: got.update(meta=stage.meta))
-    align_low("point", imitate=a, config=cfg, disc=D.DiscConfig(buffer_size=500, data="fixed"), seeds=1, n_offline=64,
-              quiet=True, **kw)
+    align_low("point", AlignSpec(a, D.DiscConfig(buffer_size=500, data="fixed"), n_offline=64, **kw), cfg,
+              options=RunOptions(seeds=1, quiet=True))
     np.testing.assert_array_equal(got["tau"], collect_offline(a, 64, key, num_envs=64, which=want))
     rec = got["meta"]["aligned_to"]
     assert rec["params"] == want and (want == "final" or rec["params_env_steps"] == 7)

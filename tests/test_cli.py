@@ -292,8 +292,8 @@ BAD_CLI = {
     "LL seed out of range": ([*HIGH, "{low}", *FRESH, "--low-seed", "3"], "no checkpoint for seed 3"),
     "finetune from an LL": (["finetune", "--high", "{low}", "--low", "{low}", "--task", "waypoint", "--preset",
                              "smoke", *FRESH], "finetune_high needs an HL"),
-    "negative KL": (["finetune", "--high", "{high}", "--low", "{low}", "--task", "waypoint", "--kl", "-1",
-                     "--preset", "smoke", *FRESH], "kl=-1.0: the KL weight must be"),
+    "negative KL": (["finetune", "--high", "{high}", "--low", "{low}", "--task", "waypoint", "--kl-weight", "-1",
+                     "--preset", "smoke", *FRESH], "kl_weight=-1.0: the KL weight must be"),
     "align across families": (["align", "--agent", "arm3", "--imitate", "{low}", "--preset", "smoke", *FRESH],
                               "goal spaces differ"),
     "imitate an HL": (["align", "--agent", "point", "--imitate", "{high}", "--preset", "smoke", *FRESH],
@@ -658,18 +658,20 @@ def test_finetune_takes_the_papers_beta_and_learning_rate_of_the_task(monkeypatc
   class Result:
     history, run_dir, best = {}, tmp_path, None
 
-  def fake(high, low, task, **kw):
+  def fake(high, low, task, config, spec, **kw):
     seen.clear()
-    seen.update(kw, task=task)
+    seen.update(kw, task=task, config=config, kl_weight=spec.kl_weight, lr=spec.lr)
     return Result
 
   monkeypatch.setattr(ft, "finetune_high", fake)
   run = lambda high, task, *extra: main(["finetune", "--high", high, "--low", "zoo:point/low", "--task", task,
                                          "--preset", "smoke", "--quiet", "--out", str(tmp_path / "o"), *extra])
   lrs = lambda: (seen["config"].actor_lr, seen["config"].critic_lr, seen["config"].alpha_lr)
-  assert run("zoo:point/waypoint", "waypoint") == 0 and seen["kl"] == 1.0 and lrs() == (1e-2,) * 3
-  assert run("zoo:point/maze", "maze") == 0 and seen["kl"] == 0.01 and lrs() == (1e-3,) * 3
-  assert run("zoo:point/maze", "maze", "--kl", "0", "--lr", "5e-3") == 0 and (seen["kl"], seen["lr"]) == (0.0, 5e-3)
+  assert run("zoo:point/waypoint", "waypoint") == 0 and seen["kl_weight"] == 1.0 and lrs() == (1e-2,) * 3
+  assert run("zoo:point/maze", "maze") == 0 and seen["kl_weight"] == 0.01 and lrs() == (1e-3,) * 3
+  assert run("zoo:point/maze", "maze", "--kl-weight", "0", "--lr", "5e-3") == 0
+  assert (seen["kl_weight"], seen["lr"]) == (0.0, 5e-3)
+  assert run("zoo:point/maze", "maze", "--kl", "0.5") == 0 and seen["kl_weight"] == 0.5  # --kl: the same option
   assert run("zoo:point/maze", "maze", "--actor-lr", "2e-3") == 0 and seen["lr"] is None
   assert lrs() == (2e-3, 1e-3, 1e-3)  # the other two: the task's
   # `hdt sweep finetune` takes the same defaults; a gridded learning rate is the grid's.

@@ -72,9 +72,9 @@ def test_defaults_are_data_on_agents_and_tasks():
     if task.hl_budget:
       assert configs.high_config(name).total_env_steps == task.hl_budget
       assert configs.full_config("point" if task.family == "nav" else "arm3", name).total_env_steps == task.hl_budget
-      assert configs.finetune_params(name) == dict(kl=task.finetune_kl, lr=task.finetune_lr)
-  assert configs.finetune_params("maze") == dict(kl=0.01, lr=1e-3)
-  assert configs.finetune_params("push1") == dict(kl=1.0, lr=1e-2)
+      assert configs.finetune_params(name) == dict(kl_weight=task.finetune_kl_weight, lr=task.finetune_lr)
+  assert configs.finetune_params("maze") == dict(kl_weight=0.01, lr=1e-3)
+  assert configs.finetune_params("push1") == dict(kl_weight=1.0, lr=1e-2)
 
 
 # -- one table for the CLI and experiments/ -------------------------------------------------------
@@ -130,9 +130,9 @@ def test_align_discriminator_defaults_come_from_a_in_cli_api_and_experiments():
   parse = lambda *extra: cli.build_parser().parse_args(["align", "--agent", "arm3", "--imitate", "x", *extra])
   for a, want in (("arm_point", (3e-4, 0.4, "online")), ("arm3", (5e-4, 0.4, "online")), ("point", (2e-4, 0.3, "offline"))):
     d = cli._disc(parse(), a)
-    assert (d.lr, d.w_init, d.data) == want == (lambda c: (c.lr, c.w_init, c.data))(configs.disc_config(a)), a
+    assert (d.lr, d.weight, d.data) == want == (lambda c: (c.lr, c.weight, c.data))(configs.disc_config(a)), a
   d = cli._disc(parse("--disc-lr", "1e-3", "--disc-data", "offline"), "arm_point")
-  assert (d.lr, d.w_init, d.data) == (1e-3, 0.4, "offline")  # options override A's values, field by field
+  assert (d.lr, d.weight, d.data) == (1e-3, 0.4, "offline")  # options override A's values, field by field
   stage = align_stage("arm3", "zoo:arm_point/low", configs.low_config("arm3", total_env_steps=64, num_envs=4,
                                                                      steps_per_chunk=16))
   assert stage.meta["discriminator"] == dataclasses.asdict(configs.disc_config("arm_point"))

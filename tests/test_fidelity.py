@@ -291,17 +291,18 @@ def test_insert_ll_trains_and_only_an_insert_ll_drives_the_insert_hl(tmp_path):
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import configs
   from hdt.transfer.pipeline import high_env, train_low
+  from hdt.transfer.runner import RunOptions
   small = dict(total_env_steps=256, num_envs=4, steps_per_chunk=64, batch_size=16, buffer_size=512,
                hidden_sizes=(16, 16), num_eval_episodes=2)
-  ins = train_low("arm_point", configs.low_config("arm_point", **small), out=tmp_path / "ins", quiet=True,
-                  terrain="insert")
+  ins = train_low("arm_point", configs.low_config("arm_point", **small), terrain="insert",
+                  options=RunOptions(out=tmp_path / "ins", quiet=True))
   assert ins.history["eval/success_max"].shape[1] >= 2  # a few chunks, each evaluated
   hl = high_env("insert", ins.run_dir)
   assert hl.env.agent.xml == "arm_point_insert.xml" and hl.eps == 0.015
   s = jax.jit(hl.step)(hl.reset(jax.random.PRNGKey(0)), jnp.zeros(2))
   assert np.isfinite(float(s.reward))
   plain = train_low("arm_point", configs.low_config("arm_point", **dict(small, total_env_steps=64)),
-                    out=tmp_path / "plain", quiet=True)
+                    options=RunOptions(out=tmp_path / "plain", quiet=True))
   with pytest.raises(ckpt.CheckpointError, match="--set terrain=insert") as e:
     high_env("insert", plain.run_dir)
   assert "\n" not in str(e.value)

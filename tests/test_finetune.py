@@ -11,8 +11,9 @@ from hdt.agents import train as sac_train
 from hdt.agents.kl import linear_anneal, make_kl_regularizer
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.finetune import finetune_high
+from hdt.transfer.finetune import FinetuneSpec, finetune_high
 from hdt.transfer.pipeline import high_env, train_high
+from hdt.transfer.runner import RunOptions
 
 OBS, ACT = 5, 2
 
@@ -85,7 +86,7 @@ def pm_runs(point_low, tmp_path_factory):
   high_cfg = configs.high_config("waypoint", total_env_steps=HIGH_STEPS, num_envs=8,
                                  updates_per_step=8, steps_per_chunk=HIGH_STEPS // 8,
                                  num_eval_episodes=4)
-  high = train_high("waypoint", low.run_dir, high_cfg, seeds=1, out=root / "high", quiet=True)
+  high = train_high("waypoint", low.run_dir, high_cfg, options=RunOptions(seeds=1, out=root / "high", quiet=True))
   return root, low, high, high_cfg
 
 
@@ -111,9 +112,10 @@ def test_large_beta_keeps_finetuned_hl_close_to_a(pm_runs):
   # The start is hdt's earlier one (A's policy, fresh critics, warm-up): with the authors' start (A's
   # whole SAC, the default) the same runs measured KL 0.81 (beta=10) vs 1.24 (beta=0), a weaker
   # separation than this test's factor 2, because A's critics pull B's policy from the first update.
-  common = dict(config=cfg, seeds=1, anneal_frac=1.0, quiet=True, init="policy", learning_starts=None)
-  tied = finetune_high(high.run_dir, low.run_dir, "waypoint", kl=100.0, out=root / "ft_kl", **common)
-  free = finetune_high(high.run_dir, low.run_dir, "waypoint", kl=0.0, out=root / "ft_free", **common)
+  ft = lambda kl_weight, out: finetune_high(
+      high.run_dir, low.run_dir, "waypoint", cfg, options=RunOptions(seeds=1, out=root / out, quiet=True),
+      spec=FinetuneSpec(kl_weight=kl_weight, anneal_frac=1.0, init="policy", learning_starts=None))
+  tied, free = ft(100.0, "ft_kl"), ft(0.0, "ft_free")
 
   env = high_env("waypoint", low.run_dir)  # HL observations of start states
   obs = jax.vmap(env.reset)(jax.random.split(jax.random.PRNGKey(7), 256)).obs
@@ -135,7 +137,7 @@ def test_large_beta_keeps_finetuned_hl_close_to_a(pm_runs):
 
   # Checkpoint metadata says where it came from.
   _, m = ckpt.load(tied.run_dir, 0)
-  assert m["level"] == "high" and m["kl"] == 100.0 and m["mode"] == "forward"
+  assert m["level"] == "high" and m["kl_weight"] == 100.0 and m["mode"] == "forward"
   assert m["finetuned_from"]["path"] == str(high.run_dir)
 
 
@@ -163,7 +165,8 @@ def test_finetune_starts_from_a_whole_sac_without_warmup(pm_runs, monkeypatch):
   monkeypatch.setattr(ft, "run_stage", _capture(captured))
   cfg = configs.high_config("waypoint", total_env_steps=400, num_envs=4, steps_per_chunk=25)
   assert cfg.learning_starts > 0  # the default is overridden, as the authors' script does
-  finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=2, quiet=True)
+  finetune_high(high.run_dir, low.run_dir, "waypoint", config=cfg, spec=FinetuneSpec(kl_weight=1.0),
+                options=RunOptions(seeds=2, quiet=True))
   a, _ = ckpt.load(high.run_dir, 0)
   assert {"policy", "q", "target_q", "log_alpha"} <= set(a)
   ts = captured["initial_state"]
@@ -198,7 +201,8 @@ def test_finetune_starts_from_a_whole_sac_without_warmup(pm_runs, monkeypatch):
   import io, contextlib
   err = io.StringIO()
   with contextlib.redirect_stderr(err):
-    finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=1, quiet=True)
+    finetune_high(high.run_dir, low.run_dir, "waypoint", config=cfg, spec=FinetuneSpec(kl_weight=1.0),
+                  options=RunOptions(seeds=1, quiet=True))
   assert "no saved target_q or log_alpha" in err.getvalue() and err.getvalue().count("\n") == 1
   ts = captured["initial_state"]
   assert _leaves_equal(ts.agent.target_q_params, jax.tree.map(lambda x: x[None], a["q"]))
@@ -211,18 +215,20 @@ def test_finetune_from_an_sb2_hl_starts_from_its_value_net(pm_runs, monkeypatch,
   root, low, _, high_cfg = pm_runs
   from hdt.transfer import finetune as ft
   cfg = configs.replace(high_cfg, total_env_steps=400, steps_per_chunk=50, value_net=True)
-  a_run = train_high("waypoint", low.run_dir, cfg, seeds=1, out=tmp_path / "a_sb2", quiet=True).run_dir
+  a_run = train_high("waypoint", low.run_dir, cfg, options=RunOptions(out=tmp_path / "a_sb2", quiet=True)).run_dir
   a, _ = ckpt.load(a_run, 0)
   assert set(a["q"]) == {"q", "v"} and set(a["target_q"]) == {"v"}
   captured = {}
   monkeypatch.setattr(ft, "run_stage", _capture(captured))
-  finetune_high(a_run, low.run_dir, "waypoint", kl=1.0, seeds=1, quiet=True)  # config from A: SB2's SAC
+  finetune_high(a_run, low.run_dir, "waypoint", spec=FinetuneSpec(kl_weight=1.0),
+                options=RunOptions(quiet=True))  # config from A: SB2's SAC
   agent = captured["initial_state"].agent
   assert captured["trainer"].config.value_net
   assert _leaves_equal(agent.q_params, jax.tree.map(lambda x: x[None], a["q"]))
   assert _leaves_equal(agent.target_q_params, jax.tree.map(lambda x: x[None], a["target_q"]))
   with pytest.raises(ckpt.CheckpointError, match="value_net=True .* pass --value-net True"):
-    finetune_high(a_run, low.run_dir, "waypoint", quiet=True, config=configs.replace(cfg, value_net=False))
+    finetune_high(a_run, low.run_dir, "waypoint", config=configs.replace(cfg, value_net=False),
+                  options=RunOptions(quiet=True))
 
 
 def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypatch):
@@ -231,8 +237,8 @@ def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypat
   from hdt.transfer import finetune as ft
   captured = {}
   monkeypatch.setattr(ft, "run_stage", _capture(captured))
-  finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=_ft_config(high_cfg), seeds=2,
-                quiet=True)
+  finetune_high(high.run_dir, low.run_dir, "waypoint", _ft_config(high_cfg), spec=FinetuneSpec(kl_weight=1.0),
+                options=RunOptions(seeds=2, quiet=True))
   a_params, _ = ckpt.load(high.run_dir, 0)
   init = captured["initial_state"].agent.policy_params
   for a, b in zip(jax.tree.leaves(a_params["policy"]), jax.tree.leaves(init)):
@@ -240,17 +246,17 @@ def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypat
   monkeypatch.undo()
 
   monkeypatch.setattr(ft, "run_stage", _capture(captured))
-  finetune_high(high.run_dir, low.run_dir, "waypoint", kl=1.0, config=_ft_config(high_cfg), seeds=1,
-                quiet=True, init="policy", learning_starts=None)
+  finetune_high(high.run_dir, low.run_dir, "waypoint", _ft_config(high_cfg),
+                spec=FinetuneSpec(kl_weight=1.0, init="policy", learning_starts=None), options=RunOptions(quiet=True))
   assert captured["trainer"].config.learning_starts == _ft_config(high_cfg).learning_starts > 0
   assert float(captured["initial_state"].agent.log_alpha[0]) == 0.0  # fresh alpha = 1
   monkeypatch.undo()
 
   with pytest.raises(ckpt.CheckpointError, match="needs an HL"):
-    finetune_high(low.run_dir, low.run_dir, "waypoint", quiet=True)
+    finetune_high(low.run_dir, low.run_dir, "waypoint", options=RunOptions(quiet=True))
   with pytest.raises(ValueError, match="hidden sizes"):
-    finetune_high(high.run_dir, low.run_dir, "waypoint", quiet=True,
-                  config=configs.replace(_ft_config(high_cfg), hidden_sizes=(8, 8)))
+    finetune_high(high.run_dir, low.run_dir, "waypoint", configs.replace(_ft_config(high_cfg), hidden_sizes=(8, 8)),
+                  options=RunOptions(quiet=True))
   # An HL whose obs size does not fit the env: fake it through its metadata.
   real_load_all = ckpt.load_all
 
@@ -260,7 +266,7 @@ def test_finetune_starts_from_a_and_rejects_wrong_checkpoints(pm_runs, monkeypat
 
   monkeypatch.setattr(ckpt, "load_all", bad_load_all)
   with pytest.raises(ckpt.CheckpointError, match="observations"):
-    finetune_high(high.run_dir, low.run_dir, "waypoint", quiet=True)
+    finetune_high(high.run_dir, low.run_dir, "waypoint", options=RunOptions(quiet=True))
 
 
 def with_distinct_best(run, dst):
@@ -288,7 +294,8 @@ def test_kl_reference_is_a_best_and_the_start_a_final(pm_runs, tmp_path, monkeyp
   for which, want in [({}, best), ({"reference_params": "final"}, final)]:
     captured = {}
     monkeypatch.setattr(ft, "run_stage", _capture(captured))
-    finetune_high(a, low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=1, quiet=True, **which)
+    finetune_high(a, low.run_dir, "waypoint", cfg, spec=FinetuneSpec(kl_weight=1.0, **which),
+                  options=RunOptions(quiet=True))
     ts = captured["initial_state"]
     seed0 = lambda tree: jax.tree.map(lambda x: x[0], tree)
     assert _leaves_equal(seed0(ts.agent.policy_params), final["policy"])  # the start: A's final
@@ -299,8 +306,8 @@ def test_kl_reference_is_a_best_and_the_start_a_final(pm_runs, tmp_path, monkeyp
       assert rec["reference_params_env_steps"] == 7
   # A run without a best: the reference falls back to A's final parameters, and says so.
   monkeypatch.setattr(ft, "run_stage", _capture(captured))
-  finetune_high(high.run_dir if "best" not in ckpt.load_meta(high.run_dir, 0) else _without_best(high.run_dir, tmp_path / "nb"),
-                low.run_dir, "waypoint", kl=1.0, config=cfg, seeds=1, quiet=True)
+  a = high.run_dir if "best" not in ckpt.load_meta(high.run_dir, 0) else _without_best(high.run_dir, tmp_path / "nb")
+  finetune_high(a, low.run_dir, "waypoint", cfg, spec=FinetuneSpec(kl_weight=1.0), options=RunOptions(quiet=True))
   assert captured["meta"]["finetuned_from"]["reference_params"] == "final"
   assert _leaves_equal(jax.tree.map(lambda x: x[0], captured["initial_state"].aux["kl_reference"]),
                        ckpt.load(high.run_dir, 0, "final")[0]["policy"])

@@ -12,8 +12,9 @@ from hdt.agents.discriminator import DiscConfig
 from hdt.agents.kl import kl_plugin
 from hdt.agents.plugins import Plugin
 from hdt.transfer import configs
-from hdt.transfer.align import align_low
-from hdt.transfer.finetune import finetune_high
+from hdt.transfer.align import AlignSpec, align_low
+from hdt.transfer.finetune import FinetuneSpec, finetune_high
+from hdt.transfer.runner import RunOptions
 from hdt.transfer.sweep import sweep
 
 
@@ -34,10 +35,11 @@ def test_kl_weight_grid_matches_separate_finetune_runs(point_low, point_high, tm
   common = dict(high=point_high.run_dir, low=point_low.run_dir, task="waypoint")
   betas = [0.0, 3.0]
   runs = [(cfg, tmp_path / f"kl{b:g}", {"kl_weight": b}) for b in betas]
-  grid = sweep("finetune", runs, seeds=1, quiet=True, **common)
+  grid = sweep("finetune", runs, options=RunOptions(seeds=1, quiet=True), **common)
   for b, res in zip(betas, grid):
-    assert json.loads((res.run_dir / "meta.json").read_text())["kl"] == b
-    _same_runs(res, finetune_high(kl=b, config=cfg, seeds=1, quiet=True, **common))
+    assert json.loads((res.run_dir / "meta.json").read_text())["kl_weight"] == b
+    _same_runs(res, finetune_high(config=cfg, spec=FinetuneSpec(kl_weight=b), options=RunOptions(seeds=1, quiet=True),
+                                  **common))
   assert np.all(grid[0].history["kl_weight"] == 0) and np.all(grid[1].history["kl_weight"] > 0)
   assert not np.allclose(grid[0].history["actor_loss"], grid[1].history["actor_loss"], rtol=1e-3)
 
@@ -47,16 +49,16 @@ def test_disc_weight_grid_matches_separate_align_runs(point_low, tmp_path):
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2, learning_starts=50,
                            updates_per_step=1)
   disc = DiscConfig(buffer_size=500, start=0)
-  common = dict(imitate=point_low.run_dir, n_offline=256)
   ws = [0.1, 0.6]
   runs = [(cfg, tmp_path / f"w{w}", {"disc_weight": w}) for w in ws]
-  grid = sweep("align", runs, seeds=1, quiet=True, agent="point", disc=disc, **common)
+  grid = sweep("align", runs, options=RunOptions(seeds=1, quiet=True), agent="point",
+               imitate=AlignSpec(point_low.run_dir, disc, n_offline=256))
   for w, res in zip(ws, grid):
-    assert json.loads((res.run_dir / "meta.json").read_text())["discriminator"]["w_init"] == w
-    alone = align_low("point", config=cfg, disc=DiscConfig(buffer_size=500, start=0, w_init=w), seeds=1,
-                      quiet=True, **common)
+    assert json.loads((res.run_dir / "meta.json").read_text())["discriminator"]["weight"] == w
+    alone = align_low("point", AlignSpec(point_low.run_dir, DiscConfig(buffer_size=500, start=0, weight=w),
+                                         n_offline=256), cfg, options=RunOptions(seeds=1, quiet=True))
     _same_runs(res, alone)
-  assert grid[0].history["disc/w"][0, 0] < grid[1].history["disc/w"][0, 0]
+  assert grid[0].history["disc/weight"][0, 0] < grid[1].history["disc/weight"][0, 0]
 
 
 def test_unknown_grid_names_are_refused_naming_the_vmappable_ones():
@@ -91,7 +93,7 @@ def test_cli_sweep_finetune_writes_one_run_per_kl_weight(point_low, point_high, 
                "--out", str(out)]) == 0
   for kl in (0, 1):
     meta = json.loads((out / f"kl_weight={kl}" / "meta.json").read_text())
-    assert meta["kl"] == kl and meta["finetuned_from"]["path"] == str(point_high.run_dir)
+    assert meta["kl_weight"] == kl and meta["finetuned_from"]["path"] == str(point_high.run_dir)
   assert "kl_weight=0" in (out / "sweep.md").read_text()
   assert main(["sweep", "finetune", "--high", str(point_high.run_dir), "--low", str(point_low.run_dir),
                "--task", "waypoint", "--grid", "disc_weight=0.1", "--out", str(tmp_path / "no")]) == 2
@@ -101,7 +103,7 @@ def test_cli_sweep_finetune_writes_one_run_per_kl_weight(point_low, point_high, 
   assert "the KL weight must be a finite number >= 0" in capsys.readouterr().err
   assert main(["sweep", "align", "--agent", "point", "--imitate", str(point_low.run_dir),
                "--grid", "disc_weight=0.3,1.5", "--out", str(tmp_path / "no")]) == 1
-  assert "w_init=1.5 must be in [0, 1]" in capsys.readouterr().err
+  assert "weight=1.5 must be in [0, 1]" in capsys.readouterr().err
   assert main(["sweep", "align", "--agent", "point", "--grid", "disc_weight=0.3"]) == 2
   assert "sweep align needs --imitate" in capsys.readouterr().err
   assert not (tmp_path / "no").exists()
@@ -109,7 +111,7 @@ def test_cli_sweep_finetune_writes_one_run_per_kl_weight(point_low, point_high, 
 
 def test_weights_as_hyper_give_the_numbers_of_before():
   """Without a grid, the KL schedule (kl_weight x the anneal from 1) and the discriminator weight
-  (disc_weight as w0) are bit for bit those of linear_anneal(beta) and DiscConfig.w_init; so is a
+  (disc_weight as w0) are bit for bit those of linear_anneal(kl_weight) and DiscConfig.weight; so is a
   float32 grid value. (tests/test_plugins.py trains both plug-ins exactly as the old callables.)"""
   import jax.numpy as jnp
   from hdt.agents import discriminator as D
@@ -124,7 +126,7 @@ def test_weights_as_hyper_give_the_numbers_of_before():
       np.testing.assert_array_equal(new, old)
       np.testing.assert_array_equal(grid, old)
   for decay in (True, False):
-    cfg = DiscConfig(w_init=0.3, w_decay=decay)
+    cfg = DiscConfig(weight=0.3, w_decay=decay)
     old = jax.jit(lambda: D.reward_weight(cfg, steps, 2000))()  # training runs jitted
     np.testing.assert_array_equal(jax.jit(lambda: D.reward_weight(cfg, steps, 2000, 0.3))(), old)
     np.testing.assert_array_equal(jax.jit(lambda w: D.reward_weight(cfg, steps, 2000, w))(jnp.float32(0.3)), old)

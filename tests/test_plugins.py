@@ -34,7 +34,7 @@ def _reference(networks, seed=99):
 
 def test_discriminator_and_kl_train_together_and_both_terms_are_logged():
   networks = sac_train.make_networks(ENV, CFG)
-  kl = kl_plugin(networks.policy_apply, _reference(networks), beta=2.0, anneal_steps=CFG.total_env_steps)
+  kl = kl_plugin(networks.policy_apply, _reference(networks), kl_weight=2.0, anneal_steps=CFG.total_env_steps)
   res = sac_train.run(ENV, CFG, seeds=[0, 1], networks=networks, plugins=[_disc().plugin, kl])
   h = res.history
   learned = h["update_steps"][:, -1] > 0

@@ -29,6 +29,7 @@ from hdt.agents.discriminator import DiscConfig
 from hdt.agents.sac import SACConfig
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import pipeline, runner, sweep
+from hdt.transfer.runner import RunOptions
 from toy_env import PointGoal
 
 ENV = PointGoal()
@@ -387,7 +388,8 @@ from hdt.envs import make  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
 from hdt.transfer.align import align_low  # noqa: E402
 from hdt.transfer.evaluate import compose, evaluate  # noqa: E402
-from hdt.transfer.finetune import finetune_high  # noqa: E402
+from hdt.transfer.card import LowRef  # noqa: E402
+from hdt.transfer.finetune import FinetuneSpec, finetune_high  # noqa: E402
 from hdt.transfer.hierarchy import HighLevelEnv  # noqa: E402
 from hdt.transfer import names, zoo  # noqa: E402
 from hdt.transfer.pipeline import train_full, train_high, train_low  # noqa: E402
@@ -431,8 +433,15 @@ def policy_params(meta):
   return net.policy_init(jax.random.PRNGKey(0))
 
 
+def at(out, **kw) -> RunOptions:
+  return RunOptions(out=out, **kw)
+
+
 def _low(runs, **kw):
-  return lambda out: train_low("point", PCFG, out=out, quiet=True, **kw)
+  """train_low of the point mass into ``out``; ``kw``: RunOptions fields, or env options."""
+  run = {k: v for k, v in kw.items() if k in RunOptions.__dataclass_fields__}
+  env = {k: v for k, v in kw.items() if k not in run}
+  return lambda out: train_low("point", PCFG, options=at(out, quiet=True, **run), **env)
 
 
 BAD_INPUTS = {
@@ -448,11 +457,13 @@ BAD_INPUTS = {
     "zero discriminator batch": (lambda r: lambda out: DiscConfig(batch_size=0, stop=2.0),
                                  "batch_size=0 must be a positive integer; stop=2.0 must be in \\(0, 1\\]"),
     # environments
-    "unknown agent": (lambda r: lambda out: train_low("nope", PCFG, out=out), "unknown agent 'nope'; valid agents: point"),
+    "unknown agent": (lambda r: lambda out: train_low("nope", PCFG, options=at(out)),
+                      "unknown agent 'nope'; valid agents: point"),
     "unknown task": (lambda r: lambda out: make("point", "nope"), "unknown task 'nope'; valid tasks: reach"),
-    "unsupported pair": (lambda r: lambda out: train_full("ant", "push1", out=out),
+    "unsupported pair": (lambda r: lambda out: train_full("ant", "push1", options=at(out)),
                          "agent 'ant' cannot run task 'push1' .*tasks for ant: reach"),
-    "unknown override": (lambda r: lambda out: train_low("point", PCFG, out=out, wheels=4), "unknown override"),
+    "unknown override": (lambda r: lambda out: train_low("point", PCFG, wheels=4, options=at(out)),
+                         "unknown override"),
     "k <= 0 (HighLevelEnv)": (lambda r: lambda out: HighLevelEnv(make("point", "waypoint"), None, None, k=-1),
                               "k \\(LL steps per HL action\\) must be positive, got -1"),
     "zero sub-goal box": (lambda r: lambda out: HighLevelEnv(make("point", "waypoint"), None, None, delta_max=0),
@@ -463,39 +474,43 @@ BAD_INPUTS = {
     "negative seed": (lambda r: _low(r, seeds=[0, -1]), "list of integers >= 0"),
     "repeated seeds": (lambda r: _low(r, seeds=[1, 1]), "seeds repeat"),
     "zero save_every": (lambda r: _low(r, save_every=0), "save_every=0: give a positive number of env steps"),
-    "out is a file": (lambda r: lambda out: train_low("point", PCFG, out=r / "a_file"), "is an existing file"),
-    "resume without out": (lambda r: lambda out: train_low("point", PCFG, resume=True),
+    "out is a file": (lambda r: lambda out: train_low("point", PCFG, options=at(r / "a_file")),
+                      "is an existing file"),
+    "resume without out": (lambda r: lambda out: train_low("point", PCFG, options=RunOptions(resume=True)),
                            "resume=True needs out=: the run directory of the interrupted run"),
     "resume missing run": (lambda r: _low(r, resume=True), "cannot resume: .* does not exist; start the run without resume"),
-    "resume a run without state": (lambda r: lambda out: train_low("point", PCFG, out=r / "point_low", resume=True),
+    "resume a run without state": (lambda r: lambda out: train_low("point", PCFG, options=at(r / "point_low", resume=True)),
                                    "has no saved training state"),
     "resume changed config": (lambda r: lambda out: train_low("point", configs.replace(PCFG, actor_lr=1e-3),
-                                                              out=r / "point_state", resume=True),
+                                                              options=at(r / "point_state", resume=True)),
                               "config.actor_lr: saved 0.0003, requested 0.001.*another out= directory"),
-    "resume another agent's run": (lambda r: lambda out: train_low("arm3", PCFG, out=out, resume=r / "point_state"),
+    "resume another agent's run": (lambda r: lambda out: train_low("arm3", PCFG, options=at(out, resume=r / "point_state")),
                                    "meta.agent: saved 'point', requested 'arm3'"),
-    "resume another level's run": (lambda r: lambda out: train_full("point", "waypoint", PCFG, out=out,
-                                                                    resume=r / "point_state"),
+    "resume another level's run": (lambda r: lambda out: train_full("point", "waypoint", PCFG,
+                                                                    options=at(out, resume=r / "point_state")),
                                    "meta.level: saved 'low', requested 'full'.*meta.task: saved 'reach', "
                                    "requested 'waypoint'"),
     # hand-offs between levels
-    "missing LL run": (lambda r: lambda out: train_high("waypoint", r / "nope", out=out), "nope does not exist"),
-    "HL where LL expected": (lambda r: lambda out: train_high("waypoint", r / "point_high", out=out),
+    "missing LL run": (lambda r: lambda out: train_high("waypoint", r / "nope", options=at(out)),
+                       "nope does not exist"),
+    "HL where LL expected": (lambda r: lambda out: train_high("waypoint", r / "point_high", options=at(out)),
                              "holds a 'high'-level policy where a low level was expected"),
-    "LL seed out of range": (lambda r: lambda out: train_high("waypoint", r / "point_low", low_seed=3, out=out),
+    "LL seed out of range": (lambda r: lambda out: train_high("waypoint", LowRef(r / "point_low", seed_index=3),
+                                                              options=at(out)),
                              "no checkpoint for seed 3 .*seeds present: \\[0\\]"),
-    "HL k = 0": (lambda r: lambda out: train_high("waypoint", r / "point_low", k=0, out=out),
+    "HL k = 0": (lambda r: lambda out: train_high("waypoint", r / "point_low", k=0, options=at(out)),
                  "k \\(LL steps per HL action\\) must be positive, got 0"),
-    "HL unknown task": (lambda r: lambda out: train_high("nope", r / "point_low", out=out), "unknown task 'nope'"),
-    "nav HL on arm LL": (lambda r: lambda out: train_high("waypoint", r / "arm_low", out=out),
+    "HL unknown task": (lambda r: lambda out: train_high("nope", r / "point_low", options=at(out)),
+                        "unknown task 'nope'"),
+    "nav HL on arm LL": (lambda r: lambda out: train_high("waypoint", r / "arm_low", options=at(out)),
                          "agent 'arm3' cannot run task 'waypoint'"),
-    "finetune from an LL": (lambda r: lambda out: finetune_high(r / "point_low", r / "point_low", "waypoint", out=out),
+    "finetune from an LL": (lambda r: lambda out: finetune_high(r / "point_low", r / "point_low", "waypoint",
+                                                                options=at(out)),
                             "finetune_high needs an HL"),
-    "negative KL weight": (lambda r: lambda out: finetune_high(r / "point_high", r / "point_low", "waypoint", kl=-1,
-                                                               out=out), "kl=-1: the KL weight must be"),
-    "align across families": (lambda r: lambda out: align_low("arm3", r / "point_low", out=out),
+    "negative KL weight": (lambda r: lambda out: FinetuneSpec(kl_weight=-1), "kl_weight=-1: the KL weight must be"),
+    "align across families": (lambda r: lambda out: align_low("arm3", r / "point_low", options=at(out)),
                               "cannot align 'arm3' .*goal spaces differ"),
-    "imitate an HL": (lambda r: lambda out: train_low("point", PCFG, imitate=r / "point_high", out=out),
+    "imitate an HL": (lambda r: lambda out: train_low("point", PCFG, imitate=r / "point_high", options=at(out)),
                       "where a low level was expected"),
     "compose LL as HL": (lambda r: lambda out: compose(r / "point_low", r / "point_low"), "compose needs an HL"),
     "compose nav HL, arm LL": (lambda r: lambda out: compose(r / "point_high", r / "arm_low"),
@@ -511,22 +526,25 @@ BAD_INPUTS = {
     "evaluate missing seed": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), seeds=[2]),
                               "seeds=\\[2\\]: pick seed indices of the policy, in 0..0"),
     # run directories and sizes
-    "empty out": (lambda r: lambda out: train_low("point", PCFG, out=""), "out is empty, which would write into the current"),
-    "out under a file": (lambda r: lambda out: train_low("point", PCFG, out=r / "a_file" / "run"), "lies under the file"),
-    "out a system dir": (lambda r: lambda out: train_low("point", PCFG, out="/etc/hdt"), "is a system directory"),
-    "out an existing run": (lambda r: lambda out: train_low("point", PCFG, out=r / "point_state"),
+    "empty out": (lambda r: lambda out: train_low("point", PCFG, options=at("")),
+                  "out is empty, which would write into the current"),
+    "out under a file": (lambda r: lambda out: train_low("point", PCFG, options=at(r / "a_file" / "run")),
+                         "lies under the file"),
+    "out a system dir": (lambda r: lambda out: train_low("point", PCFG, options=at("/etc/hdt")),
+                         "is a system directory"),
+    "out an existing run": (lambda r: lambda out: train_low("point", PCFG, options=at(r / "point_state")),
                             "already holds a run: pass --resume \\(resume=True\\)"),
-    "out not an hdt dir": (lambda r: lambda out: train_low("point", PCFG, out=r / "foreign", overwrite=True),
+    "out not an hdt dir": (lambda r: lambda out: train_low("point", PCFG, options=at(r / "foreign", overwrite=True)),
                            "is not an hdt directory and not empty \\(it holds notes.txt\\)"),
     "resume and overwrite": (lambda r: _low(r, resume=True, overwrite=True), "resume and overwrite exclude each other"),
     "seeds beyond memory": (lambda r: _low(r, seeds=10**9), "GiB of memory are available: lower the number of seeds"),
     "override of wrong type": (lambda r: _low(r, delta_max="abc"), "option delta_max='abc': expected a finite number > 0"),
     "override k=0": (lambda r: _low(r, k=0), "option k=0: expected an integer > 0"),
-    "unknown low_params": (lambda r: lambda out: train_high("waypoint", r / "point_low", low_params="worst", out=out),
-                           "low_params='worst': load the 'final' parameters or the 'best'"),
+    "unknown low_params": (lambda r: lambda out: LowRef(r / "point_low", params="worst"),
+                           "params='worst': load the 'final' parameters or the 'best'"),
     "unknown which": (lambda r: lambda out: compose(r / "point_high", r / "point_low", which="last"),
                       "which='last': load the 'final' parameters"),
-    "LL meta missing a key": (lambda r: lambda out: train_high("waypoint", r / "no_hidden", out=out),
+    "LL meta missing a key": (lambda r: lambda out: train_high("waypoint", r / "no_hidden", options=at(out)),
                               "has no 'hidden_sizes': the file was edited or damaged"),
     "episodes beyond memory": (lambda r: lambda out: evaluate(compose(r / "point_high", r / "point_low"), episodes=10**12),
                                "lower the number of episodes"),
@@ -540,30 +558,35 @@ BAD_INPUTS = {
     "learning starts past the budget": (lambda r: lambda out: configs.low_config("point", total_env_steps=400,
                                                                                  learning_starts=500),
                                         "learning_starts=500 >= total_env_steps=400"),
-    "config a dict": (lambda r: lambda out: train_low("point", {}, out=out), "config=\\{\\}: pass a hdt.agents.sac.SACConfig"),
-    "out a number": (lambda r: lambda out: train_low("point", PCFG, out=123), "out=123: give the run directory as a path"),
+    "config a dict": (lambda r: lambda out: train_low("point", {}, options=at(out)),
+                      "config=\\{\\}: pass a hdt.agents.sac.SACConfig"),
+    "out a number": (lambda r: lambda out: train_low("point", PCFG, options=at(123)),
+                     "out=123: give the run directory as a path"),
     "compose box unknown": (lambda r: lambda out: compose(r / "point_high", r / "point_low", box="bogus"),
                             "box='bogus': pass 'refuse'"),
-    "anneal fraction 2": (lambda r: lambda out: finetune_high(r / "point_high", r / "point_low", "waypoint",
-                                                              anneal_frac=2, out=out), "anneal_frac=2: must be in \\[0, 1\\]"),
+    "anneal fraction 2": (lambda r: lambda out: FinetuneSpec(anneal_frac=2), "anneal_frac=2: must be in \\[0, 1\\]"),
     "networks beyond memory": (lambda r: lambda out: train_low("point", configs.replace(PCFG, hidden_sizes=(200_000,) * 2),
-                                                                out=out, quiet=True),
+                                                                options=at(out, quiet=True)),
                                "networks \\[200000, 200000\\].*GiB of memory"),
     "two grid points, one out": (lambda r: lambda out: sweep.sweep("low", [(PCFG, out), (PCFG, out)], agent="point",
-                                                                      quiet=True),
+                                                                   options=RunOptions(quiet=True)),
                                  "two grid points would write the same directory"),
     # never an input, another run, the zoo or the user's directory
-    "out is the input LL": (lambda r: lambda out: train_high("waypoint", r / "point_low", out=r / "point_low",
-                                                             overwrite=True), "is the low run .* this command reads"),
-    "out inside a run": (lambda r: lambda out: train_low("point", PCFG, out=r / "point_state" / "state" / "x"),
+    "out is the input LL": (lambda r: lambda out: train_high("waypoint", r / "point_low",
+                                                             options=at(r / "point_low", overwrite=True)),
+                            "is the low run .* this command reads"),
+    "out inside a run": (lambda r: lambda out: train_low("point", PCFG, options=at(r / "point_state" / "state" / "x")),
                          "lies inside the hdt run directory"),
-    "out in the zoo": (lambda r: lambda out: train_low("point", PCFG, out=names.ZOO_DIR / "point" / "low", overwrite=True),
+    "out in the zoo": (lambda r: lambda out: train_low("point", PCFG,
+                                                       options=at(names.ZOO_DIR / "point" / "low", overwrite=True)),
                        "lies in the model zoo"),
-    "out a user dir with meta.json": (lambda r: lambda out: train_low("point", PCFG, out=r / "user_meta", overwrite=True),
+    "out a user dir with meta.json": (lambda r: lambda out: train_low("point", PCFG,
+                                                                      options=at(r / "user_meta", overwrite=True)),
                                       "is not an hdt directory and not empty \\(it holds meta.json\\)"),
-    "out holding only .cache.tmp": (lambda r: lambda out: train_low("point", PCFG, out=r / "cache_only", overwrite=True),
+    "out holding only .cache.tmp": (lambda r: lambda out: train_low("point", PCFG,
+                                                                    options=at(r / "cache_only", overwrite=True)),
                                     "is not an hdt directory and not empty \\(it holds .cache.tmp/\\)"),
-    "out a link to a run": (lambda r: lambda out: train_low("point", PCFG, out=r / "link", overwrite=True),
+    "out a link to a run": (lambda r: lambda out: train_low("point", PCFG, options=at(r / "link", overwrite=True)),
                             "is a symbolic link"),
     "zoo export name a path": (lambda r: lambda out: zoo.export(r / "point_low", "../../victim", "test", overwrite=True),
                                "zoo name '../../victim'"),

@@ -11,6 +11,7 @@ from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.evaluate import compose, evaluate, load_policy, random_actions, trajectory, zero_shot_matrix
 from hdt.transfer.pipeline import high_env, low_policy_fn, train_low
+from hdt.transfer.runner import RunOptions
 
 
 # point_low, point_high: trained once per session (conftest.py)
@@ -78,7 +79,7 @@ def test_trajectory_records_top_down_path(point_low, point_high):
 def test_composing_incompatible_levels_fails_clearly(point_low, point_high, tmp_path):
   cfg = configs.low_config("arm3", total_env_steps=200, num_envs=2, steps_per_chunk=100, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
-  arm = train_low("arm3", cfg, seeds=1, out=tmp_path / "arm_low", quiet=True)
+  arm = train_low("arm3", cfg, options=RunOptions(seeds=1, out=tmp_path / "arm_low", quiet=True))
   with pytest.raises(ValueError, match="goal spaces do not match"):
     compose(point_high.run_dir, arm.run_dir)
   with pytest.raises(ckpt.CheckpointError, match="compose needs an HL"):
@@ -121,7 +122,7 @@ def test_sweep_trains_same_shape_points_together_and_writes_each_run(tmp_path):
   cfgs.append(dataclasses.replace(base, batch_size=32))
   runs = [(c, tmp_path / "sweep" / f"p{i}") for i, c in enumerate(cfgs)]
   results = sweep("low", runs, seeds=2, agent="point", quiet=True)
-  alone = train_low("point", cfgs[1], seeds=2, out=tmp_path / "alone", quiet=True)
+  alone = train_low("point", cfgs[1], options=RunOptions(seeds=2, out=tmp_path / "alone", quiet=True))
   hashed = {"tb", "d", "ocdbt.process_0"}  # event files and array shards named by time or content hash
   listing = lambda d: sorted(str(p.relative_to(d)) for p in d.rglob("*") if not hashed & set(p.relative_to(d).parts))
   for (cfg, out), res in zip(runs, results):

@@ -205,6 +205,7 @@ def test_an_hl_run_started_over_an_older_zoo_copy_resumes_after_the_entry_is_sli
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import configs
   from hdt.transfer.pipeline import train_high
+  from hdt.transfer.runner import RunOptions
   monkeypatch.setattr(names, "ZOO_DIR", tmp_path / "zoo")
   run = point_low.run_dir if hasattr(point_low, "run_dir") else point_low
   zoo.export(run, "t/low", "test", episodes=4)
@@ -213,11 +214,11 @@ def test_an_hl_run_started_over_an_older_zoo_copy_resumes_after_the_entry_is_sli
   cfg = lambda total: configs.high_config("waypoint", total_env_steps=total, num_envs=8, updates_per_step=8,
                                           steps_per_chunk=steps // 8, num_eval_episodes=4)
   high = tmp_path / "high"
-  train_high("waypoint", "zoo:t/low", cfg(steps), seeds=1, out=high, quiet=True, save_every=steps)
+  train_high("waypoint", "zoo:t/low", cfg(steps), options=RunOptions(out=high, quiet=True, save_every=steps))
   zoo.reslim("t/low")
-  res = train_high("waypoint", "zoo:t/low", cfg(2 * steps), seeds=1, out=high, quiet=True, resume=True)
+  res = train_high("waypoint", "zoo:t/low", cfg(2 * steps), options=RunOptions(out=high, quiet=True, resume=True))
   assert int(np.max(res.history["env_steps"])) == 2 * steps
   # a real change of the LL is still refused
   _break_first_layer(tmp_path / "zoo", shuffle=False)
   with pytest.raises(ckpt.CheckpointError, match="content hash differs"):
-    train_high("waypoint", "zoo:t/low", cfg(3 * steps), seeds=1, out=high, quiet=True, resume=True)
+    train_high("waypoint", "zoo:t/low", cfg(3 * steps), options=RunOptions(out=high, quiet=True, resume=True))

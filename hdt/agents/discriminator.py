@@ -56,7 +56,7 @@ B_LABEL, A_LABEL = 0.95, 0.05  # the authors' soft labels: agent (B) 0.95, exper
 DATA_MODES = ("offline", "online", "fixed")
 
 
-WEIGHT = "disc_weight"  # the alignment plug-in's vmappable hyper-parameter (w_init)
+WEIGHT = "disc_weight"  # the alignment plug-in's vmappable hyper-parameter (DiscConfig.weight, w0)
 # DiscConfig fields added after alignment runs had been saved, each with the value that gives those
 # runs' behaviour: a saved run without the field resumes under that value (hdt.transfer.runner).
 ADDED_FIELDS = {"expert_restart": "low", "expert_prev_obs": "post_restart"}
@@ -70,7 +70,7 @@ class DiscConfig:
   batch_size: int = 64  # samples per update from the class-balanced buffer (discrim_batch_size)
   hidden_sizes: tuple[int, ...] = (32, 32)  # paper text [42, 42]; authors' code [32, 32] tanh
   update_every: int = 8  # env steps between updates: paper table 8; DSAC's default discrim_train_freq=1
-  w_init: float = 0.3  # w0: 0.3 nav, 0.4 manip (paper table); DSAC's default discrim_weight=0.5
+  weight: float = 0.3  # w0, the initial weight: 0.3 nav, 0.4 manip (paper table); DSAC's default discrim_weight=0.5
   w_min: float = 0.1  # floor of the decayed weight (DSAC.learn)
   w_decay: bool = True  # w = max(w0 (1 - step/T), w_min); False: constant w0 (DSAC's default)
   start: int = 200  # the bonus is added only for step > start (discrim_start)
@@ -104,7 +104,7 @@ class DiscConfig:
     bad += [f"stop={self.stop!r} must be in (0, 1]"] if not 0.0 < self.stop <= 1.0 else []
     bad += [f"{k}={getattr(self, k)!r} must be positive" for k in ("lr", "reward_clip", "coef")
             if not getattr(self, k) > 0]
-    bad += [f"{k}={getattr(self, k)!r} must be in [0, 1]" for k in ("w_init", "w_min")
+    bad += [f"{k}={getattr(self, k)!r} must be in [0, 1]" for k in ("weight", "w_min")
             if not 0.0 <= getattr(self, k) <= 1.0]
     bad += [f"start={self.start!r} must be >= 0"] if not self.start >= 0 else []
     bad += [f"test_every={self.test_every!r} must be >= 0 (0: no held-out episodes)"] \
@@ -155,10 +155,10 @@ def disc_loss(apply_fn, params, x, labels):
   return loss, acc
 
 
-def reward_weight(cfg: DiscConfig, step, total_env_steps: int, w_init=None) -> jax.Array:
+def reward_weight(cfg: DiscConfig, step, total_env_steps: int, disc_weight=None) -> jax.Array:
   """``max(w0 (1 - step/T), w_min)`` with ``w_decay`` (the authors' ``discrim_decay``), else ``w0``;
-  ``w0``: ``w_init`` if given (e.g. a grid point's, traced), else ``cfg.w_init``."""
-  w0 = cfg.w_init if w_init is None else w_init
+  ``w0``: ``disc_weight`` if given (e.g. a grid point's, traced), else ``cfg.weight``."""
+  w0 = cfg.weight if disc_weight is None else disc_weight
   frac = 1.0 - jnp.asarray(step, jnp.float32) / float(total_env_steps)
   w = jnp.maximum(w0 * frac, cfg.w_min) if cfg.w_decay else jnp.asarray(w0, jnp.float32) + 0 * frac
   return w.astype(jnp.float32)
@@ -170,11 +170,11 @@ def disc_bonus(d, coef: float = 2.0, clip: float = 10.0):
   return jnp.clip(-coef * jnp.log(d + 1e-6), 0.0, clip)
 
 
-def shaped_reward(cfg: DiscConfig, r_task, d, step, total_env_steps: int, w_init=None):
+def shaped_reward(cfg: DiscConfig, r_task, d, step, total_env_steps: int, disc_weight=None):
   """``(1 - w) r_task + [step > start] w bonus(D)`` (``DSAC._train_step``); ``step`` is the index of
   the latest env step (0-based). The task reward is scaled by ``1 - w`` even before ``start``.
-  ``w_init``: see :func:`reward_weight`."""
-  w = reward_weight(cfg, step, total_env_steps, w_init)
+  ``disc_weight``: see :func:`reward_weight`."""
+  w = reward_weight(cfg, step, total_env_steps, disc_weight)
   on = jnp.asarray(step) > cfg.start
   return (1.0 - w) * r_task + jnp.where(on, w * disc_bonus(d, cfg.coef, cfg.reward_clip), 0.0)
 
@@ -244,10 +244,10 @@ class Alignment(NamedTuple):
   @property
   def plugin(self) -> Plugin:
     """The alignment as one :class:`hdt.agents.plugins.Plugin` (combinable with others); its hyper
-    ``disc_weight`` is the reward weight w0 (``cfg.w_init``), vmappable over a grid."""
+    ``disc_weight`` is the reward weight w0 (``cfg.weight``), vmappable over a grid."""
     return Plugin(name="discriminator", init=lambda key, agent: (agent, self.aux_init(key)),
                   update=self.aux_update, reward=self.reward_fn,
-                  transition_extras=self.transition_extras, hyper={WEIGHT: float(self.cfg.w_init)})
+                  transition_extras=self.transition_extras, hyper={WEIGHT: float(self.cfg.weight)})
 
   @property
   def plugins(self) -> dict:
@@ -389,7 +389,7 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     n_on = jnp.maximum(jnp.sum(on), 1.0)
     step = env_steps - 1
     metrics = {"disc/loss": jnp.sum(loss * on) / n_on, "disc/acc": jnp.sum(acc * on) / n_on,
-               "disc/w": reward_weight(cfg, step, T, disc_weight), "disc/lr": disc_lr(cfg, step, T)}
+               "disc/weight": reward_weight(cfg, step, T, disc_weight), "disc/lr": disc_lr(cfg, step, T)}
     if te:  # accuracy on a held-out batch (NaN until the test buffer holds one)
       n_t = jnp.maximum(out["tsize"], 1)
       t_is_b, ti, ta = _draw(jax.random.bits(k_t, (3, bs), jnp.uint32), n_t, n_t if online else tau_a.shape[0])

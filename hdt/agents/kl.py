@@ -1,10 +1,10 @@
 """KL regularisation towards a frozen reference policy, and the annealed weight of that term.
 
 Used for KL-regularised finetuning (SPEC section 4): the actor loss of SAC gets
-``beta(env_steps) * KL(pi_B(.|s) || pi_A(.|s))`` where both policies are the *pre-tanh* diagonal
+``w(env_steps) * KL(pi_B(.|s) || pi_A(.|s))`` where both policies are the *pre-tanh* diagonal
 Gaussians ``N(loc, scale)`` their networks output (the tanh is the same bijection for both, so the KL
-of the squashed distributions equals the KL of the pre-tanh ones), and ``beta`` decays linearly to
-``1e-5 beta`` (KLSAC's floor).
+of the squashed distributions equals the KL of the pre-tanh ones), and the weight ``w`` decays
+linearly from ``kl_weight`` (the paper's beta) to ``1e-5 kl_weight`` (KLSAC's floor).
 
 ``make_kl_regularizer`` returns a function with the ``actor_regularizer(policy_params, obs[, obs_norm]) -> scalar``
 signature of :func:`hdt.agents.sac.make_losses` / :func:`hdt.agents.train.make_train`;
@@ -26,7 +26,7 @@ Params = Any
 MODES = ("forward", "reverse")
 
 
-WEIGHT = "kl_weight"  # the KL plug-in's vmappable hyper-parameter (beta)
+WEIGHT = "kl_weight"  # the KL plug-in's vmappable hyper-parameter (the paper's beta), and its metric column
 
 def make_kl_regularizer(
     policy_apply: Callable[[Params, jax.Array], tuple[jax.Array, jax.Array]],
@@ -83,19 +83,19 @@ def make_kl_term(policy_apply, mode: str = "forward", mean_only: bool = False):
 
 
 KL_REFERENCE = "kl_reference"  # its key in TrainState.aux
-KL_FLOOR = 1e-5  # the annealed weight's floor, as a fraction of beta (KLSAC.learn, kl_decay)
+KL_FLOOR = 1e-5  # the annealed weight's floor, as a fraction of kl_weight (KLSAC.learn, kl_decay)
 KL_REFERENCE_OBS_NORM = "kl_reference_obs_norm"  # the reference's observation statistics, if it has some
 
 
-def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps: float,
+def kl_plugin(policy_apply, reference_params: Params, kl_weight: float, anneal_steps: float,
               mode: str = "forward", mean_only: bool = False, reference_obs_norm: Any = None) -> Plugin:
-  """The KL term as a training plug-in: ``beta(env_steps) * KL`` (:func:`linear_anneal` from ``beta``
-  to ``beta * KL_FLOOR`` at ``anneal_steps``) to a reference policy kept per seed in
+  """The KL term as a training plug-in: ``w(env_steps) * KL`` (:func:`linear_anneal` from ``kl_weight``
+  to ``kl_weight * KL_FLOOR`` at ``anneal_steps``) to a reference policy kept per seed in
   ``TrainState.aux["kl_reference"]`` (and its observation statistics, if any, in
   ``aux["kl_reference_obs_norm"]``); every seed starts with ``reference_params`` (no seed axis).
-  ``beta`` is its hyper ``kl_weight`` (vmappable over a grid, :mod:`hdt.agents.plugins`): the weight
-  is ``kl_weight`` times the anneal from 1, which equals :func:`linear_anneal` ``(beta, ...)`` bit for
-  bit."""
+  ``kl_weight`` is its hyper of that name (vmappable over a grid, :mod:`hdt.agents.plugins`): the
+  weight is ``kl_weight`` times the anneal from 1, which equals :func:`linear_anneal` ``(kl_weight, ...)``
+  bit for bit."""
   term = make_kl_term(policy_apply, mode, mean_only)
   f32 = lambda tree: jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), tree)
   state = {KL_REFERENCE: f32(reference_params)}
@@ -108,20 +108,20 @@ def kl_plugin(policy_apply, reference_params: Params, beta: float, anneal_steps:
       regularizer=lambda state, params, obs, obs_norm=None, kl_weight=None: term(
           params, state[KL_REFERENCE], obs, obs_norm, state.get(KL_REFERENCE_OBS_NORM)),
       schedule=lambda env_steps, kl_weight: kl_weight * anneal(env_steps),
-      hyper={WEIGHT: float(beta)},
+      hyper={WEIGHT: float(kl_weight)},
   )
 
 
-def linear_anneal(beta: float, end_steps: float, floor: float = KL_FLOOR) -> Callable[[jax.Array], jax.Array]:
-  """``schedule(env_steps)``: ``beta max(floor, 1 - env_steps / end_steps)``, so ``beta`` at 0 env steps,
-  linearly down to ``beta floor`` at ``end_steps``, then constant (KLSAC.learn with ``kl_decay``:
+def linear_anneal(weight: float, end_steps: float, floor: float = KL_FLOOR) -> Callable[[jax.Array], jax.Array]:
+  """``schedule(env_steps)``: ``weight max(floor, 1 - env_steps / end_steps)``, so ``weight`` at 0 env
+  steps, linearly down to ``weight floor`` at ``end_steps``, then constant (KLSAC.learn with ``kl_decay``:
   ``kl_coef max(1e-5, 1 - step / (kl_stop T))``, never exactly 0; ``floor=0`` ends at 0).
 
   ``end_steps <= 0`` gives the constant 0 (no regularisation at all).
   """
-  beta = float(beta)
+  weight = float(weight)
   end_steps = int(round(end_steps))
-  if end_steps <= 0 or beta == 0.0:
+  if end_steps <= 0 or weight == 0.0:
     return lambda env_steps: jnp.zeros((), jnp.float32)
   lo, end = jnp.float32(floor), jnp.float32(end_steps)
-  return lambda env_steps: jnp.float32(beta) * jnp.maximum(lo, 1.0 - jnp.asarray(env_steps, jnp.float32) / end)
+  return lambda env_steps: jnp.float32(weight) * jnp.maximum(lo, 1.0 - jnp.asarray(env_steps, jnp.float32) / end)

@@ -48,8 +48,8 @@ class Task:
   # The paper's HL budget in HL decisions (its HL "Timesteps", Appendix D); also the Full baseline's
   # budget in LL env steps (paper table). 0: the task has no HL (reach).
   hl_budget: ClassVar[int] = 0
-  # HL finetuning with a KL tie to A's HL (SPEC 4): initial weight beta and learning rate.
-  finetune_kl: ClassVar[float] = 1.0
+  # HL finetuning with a KL tie to A's HL (SPEC 4): initial KL weight (beta) and learning rate.
+  finetune_kl_weight: ClassVar[float] = 1.0
   finetune_lr: ClassVar[float] = 1e-2
   # The metric a table reports: "success" (episode success rate) or "return".
   headline: ClassVar[str] = "return"
@@ -259,7 +259,7 @@ class Maze(Task):
   scene_file: str = "maze.xml"
   skill_penalty: float = 0.005  # maze.py PointMaze / AntMaze
   hl_budget: ClassVar[int] = 400_000
-  finetune_kl: ClassVar[float] = 0.01
+  finetune_kl_weight: ClassVar[float] = 0.01
   finetune_lr: ClassVar[float] = 1e-3
   headline: ClassVar[str] = "success"
   agent_variant: ClassVar[str] = "maze"

@@ -25,43 +25,60 @@ IMITATE_PARAMS = "best"
 OFFLINE_ENVS = 64  # envs of A's LL run side by side to collect the "fixed" data
 
 
-def align_low(agent: str, imitate: str | Path, config: SACConfig | None = None,
-              disc: DiscConfig | None = None, seeds=1, out=None, n_offline: int = 20_000,
-              backend: str = "auto", quiet: bool = False, imitate_seed: int = 0,
-              offline_seed: int = 0, resume=False, save_every=None, overwrite=False,
-              imitate_params: str = IMITATE_PARAMS, **env_overrides) -> RunResult:
-  """Goal-conditioned LL of ``agent`` aligned to the LL saved in ``imitate`` (agent A).
+@dataclasses.dataclass(frozen=True)
+class AlignSpec:
+  """What an LL is aligned to (Algorithm 1): A's LL run and how B's discriminator sees it.
 
-  ``disc``: the discriminator; default :func:`hdt.transfer.configs.disc_config` of A's agent (the paper's
-  hyper-parameters by A; offline data for nav, online for manipulation).
-  A's data (``disc.data``, :mod:`hdt.agents.discriminator`): "offline" and "online": A's LL runs in A's reach
-  env (episodes of ``disc.expert_time_limit`` steps) alongside each of B's envs (``DiscriminatorEnv``);
-  "fixed": ``n_offline`` transitions of A's deterministic LL on uniformly sampled goals
-  (:func:`collect_offline`, key ``PRNGKey(offline_seed)``), shared by all seeds.
-  Writes a level-"low" run whose meta has ``aligned_to`` (A's run dir, agent, seed) and
-  ``discriminator`` (the DiscConfig). backend: the physics backend; seeds, out, quiet, resume, save_every, overwrite: see
-  :class:`hdt.transfer.runner.RunOptions`.
-  ``imitate_params``: A's "best" evaluation's parameters (default, the authors') or its "final" ones;
-  ``aligned_to["params"]`` records which were used.
+  imitate: A's LL run directory (or ``zoo:NAME``); imitate_seed: its seed; imitate_params: its "best"
+    evaluation's parameters (default, the authors') or its "final" ones (``aligned_to["params"]``
+    records which were used).
+  disc: the discriminator; default :func:`hdt.transfer.configs.disc_config` of A's agent (the paper's
+    hyper-parameters by A; offline data for nav, online for manipulation). Its ``data``
+    (:mod:`hdt.agents.discriminator`): "offline" and "online", A's LL runs in A's reach env (episodes of
+    ``disc.expert_time_limit`` steps) alongside each of B's envs; "fixed", ``n_offline`` transitions
+    of A's deterministic LL on uniformly sampled goals (:func:`collect_offline`, key
+    ``PRNGKey(offline_seed)``), shared by all seeds.
   """
-  stage = align_stage(agent, imitate, config, disc, n_offline, backend, imitate_seed, offline_seed,
-                      imitate_params, **env_overrides)
-  return run_stage(stage, RunOptions(seeds, out, quiet, resume, save_every, overwrite))
+
+  imitate: str | Path
+  disc: DiscConfig | None = None
+  n_offline: int = 20_000
+  imitate_seed: int = 0
+  imitate_params: str = IMITATE_PARAMS
+  offline_seed: int = 0
+
+  def __post_init__(self):
+    ckpt.check_which(self.imitate_params, "imitate_params")
+    if self.disc is not None and not isinstance(self.disc, DiscConfig):
+      raise ValueError(f"disc={self.disc!r}: pass a hdt.agents.discriminator.DiscConfig (or None: A's paper values)")
+
+  @classmethod
+  def of(cls, imitate) -> "AlignSpec":
+    """``imitate`` as an AlignSpec: itself, or A's run directory with the defaults."""
+    return imitate if isinstance(imitate, AlignSpec) else cls(imitate)
 
 
-def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None,
-                disc: DiscConfig | None = None, n_offline: int = 20_000, backend: str = "auto",
-                imitate_seed: int = 0, offline_seed: int = 0, imitate_params: str = IMITATE_PARAMS,
-                **env_overrides) -> Stage:
+def align_low(agent: str, imitate: AlignSpec | str | Path, config: SACConfig | None = None, *,
+              backend: str = "auto", options: RunOptions = RunOptions(), **env_overrides) -> RunResult:
+  """Goal-conditioned LL of ``agent`` aligned to the LL of agent A that ``imitate`` names (A's run
+  directory, or an :class:`AlignSpec`). Writes a level-"low" run whose card records ``aligned_to``
+  (A's run, agent, seed, parameters) and ``discriminator`` (the DiscConfig). backend: the physics
+  backend; options: how it runs (:class:`hdt.transfer.runner.RunOptions`)."""
+  return run_stage(align_stage(agent, imitate, config, backend, **env_overrides), options)
+
+
+def align_stage(agent: str, imitate: AlignSpec | str | Path, config: SACConfig | None = None,
+                backend: str = "auto", **env_overrides) -> Stage:
   """The stage of :func:`align_low`: B's reach env and LL config, the discriminator plug-in against
   A's data, and a card that records A."""
   configs.check_config(config, allow_none=True)
-  params_a, meta_a, fn_a = load_low(imitate, imitate_seed, ckpt.check_which(imitate_params, "imitate_params"))
-  disc = configs.disc_config(meta_a["agent"]) if disc is None else disc
+  spec = AlignSpec.of(imitate)
+  params_a, meta_a, fn_a = load_low(spec.imitate, spec.imitate_seed, spec.imitate_params)
+  disc = configs.disc_config(meta_a["agent"]) if spec.disc is None else spec.disc
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = configs.low_config(agent) if config is None else config
   card = PolicyCard.from_env(env, "low", config, env_overrides=env_overrides)
-  card_a = PolicyCard.from_json(meta_a, imitate)
+  card_a = PolicyCard.from_json(meta_a, spec.imitate)
   card_a.compatible_with(card, "align")
   tau_scale = float(card_a.delta_max or 1.0) if disc.scale_inputs else 1.0
   if disc.data != "fixed":
@@ -71,15 +88,16 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
     al = disc_lib.make_alignment(disc, None, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale, expert=expert)
   else:
-    tau_a = _policy_inputs(card_a.make_env("reach", backend), fn_a, params_a["policy"], n_offline,
-                           jax.random.PRNGKey(offline_seed), OFFLINE_ENVS, disc.include_z)
+    tau_a = _policy_inputs(card_a.make_env("reach", backend), fn_a, params_a["policy"], spec.n_offline,
+                           jax.random.PRNGKey(spec.offline_seed), OFFLINE_ENVS, disc.include_z)
     al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale)
-  meta = dict(card.to_json(), aligned_to=dict(path=str(imitate), agent=meta_a["agent"], seed_index=imitate_seed,
-                                    params=meta_a["params"], params_env_steps=meta_a["params_env_steps"],
-                                    n_offline=int(n_offline) if disc.data == "fixed" else 0,
-                                    offline_seed=offline_seed, tau_scale=tau_scale,
-                                    sha256=ckpt.content_hash(imitate, imitate_seed)),
+  meta = dict(card.to_json(), aligned_to=dict(path=str(spec.imitate), agent=meta_a["agent"],
+                                              seed_index=spec.imitate_seed, params=meta_a["params"],
+                                              params_env_steps=meta_a["params_env_steps"],
+                                              n_offline=int(spec.n_offline) if disc.data == "fixed" else 0,
+                                              offline_seed=spec.offline_seed, tau_scale=tau_scale,
+                                              sha256=ckpt.content_hash(spec.imitate, spec.imitate_seed)),
               discriminator=dataclasses.asdict(disc))
   return Stage(env, config, meta, f"align {agent}<-{meta_a['agent']}", plugins=(al.plugin,),
                # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
@@ -88,10 +106,10 @@ def align_stage(agent: str, imitate: str | Path, config: SACConfig | None = None
 
 
 def _point_meta(meta: dict, hyper: dict) -> dict:
-  """The meta of a grid point over the discriminator's ``disc_weight`` (its w0, ``w_init``)."""
+  """The meta of a grid point over the discriminator's ``disc_weight`` (its initial weight w0)."""
   if disc_lib.WEIGHT not in hyper:
     return meta
-  return dict(meta, discriminator=dict(meta["discriminator"], w_init=hyper[disc_lib.WEIGHT]))
+  return dict(meta, discriminator=dict(meta["discriminator"], weight=hyper[disc_lib.WEIGHT]))
 
 
 def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):

@@ -16,6 +16,7 @@ statistics saved beside the policy's parameters (``params["obs_norm"]``, if it w
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Callable, Mapping
@@ -67,6 +68,33 @@ class ObsLayout:
   def from_json(cls, d: Mapping | None) -> "ObsLayout":
     d = d or {}  # runs that predate the field observed plain obs_hi
     return cls(tuple(int(i) for i in d.get("hl_relative", ())), bool(d.get("hl_absolute", True)))
+
+
+@dataclasses.dataclass(frozen=True)
+class LowRef:
+  """The frozen LL an HL runs over: its run directory (or ``zoo:NAME``), the seed that drives every HL
+  seed, and which of its parameters ("best", as the authors compose, or "final"). An HL's card records
+  it as ``low`` with what was loaded: the parameters' env steps and the seed's content hash."""
+
+  path: str
+  seed_index: int = 0
+  params: str = LOW_PARAMS
+  params_env_steps: int | None = None
+  sha256: str | None = None
+
+  def __post_init__(self):
+    if isinstance(self.path, os.PathLike):
+      object.__setattr__(self, "path", os.fspath(self.path))
+    ckpt.check_which(self.params, "params")
+
+  @classmethod
+  def of(cls, low) -> "LowRef":
+    """``low`` as a LowRef: itself, or a run directory's seed 0 and best parameters."""
+    if isinstance(low, LowRef):
+      return low
+    if not isinstance(low, (str, os.PathLike)):
+      raise ValueError(f"low={low!r}: give the LL's run directory (or zoo:NAME), or a LowRef")
+    return cls(os.fspath(low))
 
 
 def low_policy_fn(hidden_sizes, obs_size: int, action_size: int, obs_norm=None) -> Callable:

@@ -32,7 +32,8 @@ import orbax.checkpoint as ocp
 from hdt import atomic
 from hdt.agents import normalizer
 from hdt.transfer import names
-from hdt.transfer.names import SEED_HASHES, CheckpointError, content_hash, current, existing_seed_dir, list_seeds, seed_dir
+from hdt.transfer.names import (SEED_HASHES, CheckpointError, content_hash, current, existing_seed_dir, list_seeds,
+                               seed_dir)
 from hdt.transfer.names import resolve as zoo_path  # zoo:NAME wherever a run is read
 from hdt.version import __version__
 

@@ -3,7 +3,7 @@
 The paper's SAC hyper-parameters per level and agent family (SPEC 4, paper Appendix D) and the
 budgets of ``--preset``. Defaults that belong to an agent or a task are data on them and read here:
 ``AgentSpec.ll_budget`` (LL env steps), ``Task.hl_budget`` (HL decisions; the Full baseline's LL env
-steps), ``Task.finetune_kl`` / ``finetune_lr``. Budgets are validated, never rounded: a budget that
+steps), ``Task.finetune_kl_weight`` / ``finetune_lr``. Budgets are validated, never rounded: a budget that
 does not split into whole chunks is refused with the nearest valid values.
 """
 
@@ -190,12 +190,12 @@ def disc_config(agent_a: str, **overrides):
   from hdt.agents.discriminator import DiscConfig  # configs stays importable without flax
   spec = agent_spec(agent_a)
   base = {} if spec.family == "nav" else dict(lr=3e-4 if agent_a in ("arm_point", "arm2") else 5e-4,
-                                              w_init=0.4, data="online")
+                                              weight=0.4, data="online")
   return DiscConfig(**(base | overrides))
 
 
 def finetune_params(task: str) -> dict:
-  """KL weight beta and learning rate of HL finetuning (SPEC 4; ``Task.finetune_kl`` / ``finetune_lr``):
+  """KL weight and learning rate of HL finetuning (SPEC 4; ``Task.finetune_kl_weight`` / ``finetune_lr``):
   Maze and Steps beta 0.01 lr 1e-3; Waypoint and manipulation beta 1, lr 1e-2."""
   t = get_task(task)
-  return dict(kl=t.finetune_kl, lr=t.finetune_lr)
+  return dict(kl_weight=t.finetune_kl_weight, lr=t.finetune_lr)

@@ -1,9 +1,10 @@
 """Finetuning a transferred high level on a new low level, optionally KL-regularised (SPEC section 4).
 
-``finetune_high(high=A's HL run, low=B's LL run, task)`` trains SAC on the HL env of ``task`` over B's
-frozen LL, starting the policy from A's HL and adding ``beta * KL(pi_B || pi_A)`` (pre-tanh diagonal
-Gaussians, closed form) to the actor loss, ``beta`` annealed linearly from ``kl`` to ``1e-5 kl``
-(KLSAC's floor) over the first ``anneal_frac`` of training. ``kl=0`` is plain finetuning.
+``finetune_high(high=A's HL run, low=B's LL run, task, spec=FinetuneSpec(...))`` trains SAC on the HL
+env of ``task`` over B's frozen LL, starting the policy from A's HL and adding ``w * KL(pi_B || pi_A)``
+(pre-tanh diagonal Gaussians, closed form) to the actor loss, the weight ``w`` annealed linearly from
+``kl_weight`` (the paper's beta) to ``1e-5 kl_weight`` (KLSAC's floor) over the first ``anneal_frac``
+of training. ``kl_weight=0`` is plain finetuning.
 
 The other baselines need no new code: "HL from scratch on B's LL" is
 :func:`hdt.transfer.pipeline.train_high`, "Full" is :func:`hdt.transfer.pipeline.train_full`.
@@ -38,17 +39,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from hdt.agents import train as sac_train
-from hdt.agents.kl import MODES, WEIGHT, kl_plugin
+from hdt.agents.kl import MODES, kl_plugin
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.card import LOW_PARAMS, PolicyCard, check_level
-from hdt.transfer.pipeline import high_env_with_low, sac_extras, train_high
+from hdt.transfer.card import LowRef, PolicyCard, check_level
+from hdt.transfer.pipeline import high_env_with_low, sac_extras
 from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
-
-train_scratch_high = train_high  # the "HL from scratch on B's LL" baseline
-
 
 INITS = ("sac", "policy")
 # The authors start finetuning from A's final model and tie it to A's best (module docstring).
@@ -122,46 +120,11 @@ def start_plugin(a_params, pick, seed_list, config, high, init: str = "sac") -> 
   return Plugin(name="start_from_a", init=init_fn)
 
 
-def finetune_high(high: str | Path, low: str | Path, task: str, kl: float | None = None,
-                  config: SACConfig | None = None, seeds=1, out=None, anneal_frac: float = 0.5,
-                  mode: str = "forward", mean_only: bool = False, backend="auto", quiet=False,
-                  lr: float | None = None, low_seed: int = 0, reference_seed: int = 0,
-                  resume=False, save_every=None, init: str = "sac", learning_starts: int | None = 0,
-                  low_params: str = LOW_PARAMS, reference_params: str = REFERENCE_PARAMS,
-                  overwrite=False, **task_overrides) -> RunResult:
-  """SAC on ``task``'s HL env over the LL in ``low``, initialised from (and KL-tied to) the HL in ``high``.
-
-  kl: initial weight beta of the KL term; None: the task's, as the paper (1 for Waypoint /
-    manipulation, 0.01 for Maze and Steps, :func:`configs.finetune_params`); 0 = plain finetuning.
-  anneal_frac: beta goes linearly to ``1e-5 kl`` at ``anneal_frac * config.total_env_steps`` env steps
-    (:func:`hdt.agents.kl.linear_anneal`).
-  mode: "forward" KL(pi_B || pi_A) (paper) or "reverse" KL(pi_A || pi_B); mean_only: only the means
-    are tied (the authors' kl_type="mean"), see :func:`hdt.agents.kl.make_kl_regularizer`.
-  config: SAC config; default :func:`configs.finetune_config` of ``task`` (the task's finetuning
-    learning rate, the paper's) with A's hidden sizes and SAC kind.
-  lr: if given, overrides actor, critic and temperature learning rates of ``config``.
-  low_seed, low_params: the seed of ``low`` whose LL drives every HL seed, and which of its
-    parameters (as in ``train_high``).
-  reference_seed: A's seed used as the frozen KL reference for every seed.
-  reference_params: which of its parameters: "best" (default, the authors') or "final".
-  backend: the physics backend; seeds, out, quiet, resume, save_every, overwrite: see
-    :class:`hdt.transfer.runner.RunOptions` (a resumed run restarts from its saved state, not from A's HL).
-  init: "sac" (default, the authors'): start from A's policy, critics, target critics and
-    temperature; "policy": A's policy only, fresh critics and temperature (see the module docstring).
-  learning_starts: env steps of uniform-random actions before learning; 0 (default) as the authors'
-    finetuning script; None keeps ``config.learning_starts``.
-  """
-  kl = configs.finetune_params(task)["kl"] if kl is None else kl
-  stage = finetune_stage(high, low, task, kl, config, seeds, anneal_frac, mode, mean_only, backend, lr,
-                         low_seed, reference_seed, init, learning_starts, low_params, reference_params,
-                         **task_overrides)
-  return run_stage(stage, RunOptions(seeds, out, quiet, resume, save_every, overwrite))
-
-
-def check_kl(kl: float, name: str = "kl") -> None:
+def check_kl_weight(kl_weight) -> None:
   """Refuses (one line) a KL weight that is not a finite number >= 0."""
-  if not (kl >= 0 and np.isfinite(kl)):
-    raise ValueError(f"{name}={kl}: the KL weight must be a finite number >= 0 (0 = plain finetuning)")
+  if isinstance(kl_weight, bool) or not isinstance(kl_weight, (int, float, np.number)) or \
+      not (kl_weight >= 0 and np.isfinite(kl_weight)):
+    raise ValueError(f"kl_weight={kl_weight!r}: the KL weight must be a finite number >= 0 (0 = plain finetuning)")
 
 
 def check_anneal_frac(anneal_frac) -> None:
@@ -169,78 +132,132 @@ def check_anneal_frac(anneal_frac) -> None:
   if isinstance(anneal_frac, (bool, np.bool_)) or not isinstance(anneal_frac, (int, float, np.number)) \
       or not 0 <= anneal_frac <= 1:
     raise ValueError(f"anneal_frac={anneal_frac!r}: must be in [0, 1], the fraction of training over which "
-                     f"beta decays to 0 (e.g. 0.5)")
+                     f"the KL weight decays to 0 (e.g. 0.5)")
 
 
-def finetune_stage(high: str | Path, low: str | Path, task: str, kl: float = 1.0,
-                   config: SACConfig | None = None, seeds=1, anneal_frac: float = 0.5,
-                   mode: str = "forward", mean_only: bool = False, backend="auto", lr: float | None = None,
-                   low_seed: int = 0, reference_seed: int = 0, init: str = "sac",
-                   learning_starts: int | None = 0, low_params: str = LOW_PARAMS,
-                   reference_params: str = REFERENCE_PARAMS, **task_overrides) -> Stage:
+@dataclasses.dataclass(frozen=True)
+class FinetuneSpec:
+  """How A's HL is finetuned on B (module docstring); checked when made, one line per bad field.
+
+  kl_weight: initial weight of the KL term (the paper's beta); None: the task's, as the paper (1 for
+    Waypoint and manipulation, 0.01 for Maze and Steps, :func:`configs.finetune_params`); 0 = plain
+    finetuning.
+  anneal_frac: the weight goes linearly to ``1e-5 kl_weight`` at ``anneal_frac * config.total_env_steps``
+    env steps (:func:`hdt.agents.kl.linear_anneal`).
+  mode: "forward" KL(pi_B || pi_A) (paper) or "reverse" KL(pi_A || pi_B); mean_only: only the means are
+    tied (the authors' kl_type="mean"), see :func:`hdt.agents.kl.make_kl_term`.
+  lr: if given, overrides actor, critic and temperature learning rates of the config.
+  init: "sac" (default, the authors'): start from A's policy, critics, target critics and temperature;
+    "policy": A's policy only, fresh critics and temperature (see the module docstring).
+  learning_starts: env steps of uniform-random actions before learning; 0 (default) as the authors'
+    finetuning script; None keeps ``config.learning_starts``.
+  reference_seed: A's seed used as the frozen KL reference for every seed; reference_params: which of
+    its parameters, "best" (default, the authors') or "final".
+  """
+
+  kl_weight: float | None = None
+  anneal_frac: float = 0.5
+  mode: str = "forward"
+  mean_only: bool = False
+  lr: float | None = None
+  init: str = "sac"
+  learning_starts: int | None = 0
+  reference_seed: int = 0
+  reference_params: str = REFERENCE_PARAMS
+
+  def __post_init__(self):
+    if self.kl_weight is not None:
+      check_kl_weight(self.kl_weight)
+    check_anneal_frac(self.anneal_frac)
+    if self.mode not in MODES:
+      raise ValueError(f"mode={self.mode!r}: use 'forward' (KL(pi_B || pi_A)) or 'reverse' (KL(pi_A || pi_B))")
+    if self.init not in INITS:
+      raise ValueError(f"init={self.init!r}: use 'sac' (A's whole SAC) or 'policy' (A's policy only)")
+    ckpt.check_which(self.reference_params, "reference_params")
+
+  def for_task(self, task: str) -> "FinetuneSpec":
+    """This spec with the task's KL weight where it has none (the one place that default is read)."""
+    if self.kl_weight is not None:
+      return self
+    return dataclasses.replace(self, kl_weight=configs.finetune_params(task)["kl_weight"])
+
+
+def finetune_high(high: str | Path, low: LowRef | str | Path, task: str, config: SACConfig | None = None, *,
+                  spec: FinetuneSpec = FinetuneSpec(), backend: str = "auto", options: RunOptions = RunOptions(),
+                  **task_overrides) -> RunResult:
+  """SAC on ``task``'s HL env over the LL ``low`` (a run directory or a :class:`LowRef`, as in
+  ``train_high``), initialised from (and KL-tied to) the HL in ``high``, as ``spec`` says
+  (:class:`FinetuneSpec`).
+
+  config: SAC config; default :func:`configs.finetune_config` of ``task`` (the task's finetuning
+    learning rate, the paper's) with A's hidden sizes and SAC kind.
+  backend: the physics backend; options: how it runs (:class:`hdt.transfer.runner.RunOptions`; a
+    resumed run restarts from its saved state, not from A's HL).
+  """
+  return run_stage(finetune_stage(high, low, task, config, spec, options.seeds, backend, **task_overrides), options)
+
+
+def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config: SACConfig | None = None,
+                   spec: FinetuneSpec = FinetuneSpec(), seeds=1, backend: str = "auto", **task_overrides) -> Stage:
   """The stage of :func:`finetune_high`: B's HL env, the start-from-A and KL plug-ins (``seeds``: the
   seeds they start, as they will be trained), and a card that records A."""
   configs.check_config(config, allow_none=True)
-  if init not in INITS:
-    raise ValueError(f"init={init!r}: use 'sac' (A's whole SAC) or 'policy' (A's policy only)")
-  if mode not in MODES:
-    raise ValueError(f"mode={mode!r}: use 'forward' (KL(pi_B || pi_A)) or 'reverse' (KL(pi_A || pi_B))")
-  check_kl(kl)
-  check_anneal_frac(anneal_frac)
-  ckpt.check_which(reference_params, "reference_params")
+  if not isinstance(spec, FinetuneSpec):
+    raise ValueError(f"spec={spec!r}: pass a hdt.transfer.finetune.FinetuneSpec")
+  spec = spec.for_task(task)
+  kl_weight, reference_seed = spec.kl_weight, spec.reference_seed
   a_params, a_metas = load_high_sac(high, INIT_PARAMS)
   am = a_metas[0]
   n_a = len(a_metas)
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
   ref_meta = a_metas[reference_seed]
-  if kl > 0 and reference_params != INIT_PARAMS:
-    ref_params, ref_metas = load_high_sac(high, reference_params)
+  if kl_weight > 0 and spec.reference_params != INIT_PARAMS:
+    ref_params, ref_metas = load_high_sac(high, spec.reference_params)
     ref_meta = ref_metas[reference_seed]
   else:
     ref_params = a_params
 
   card_a = PolicyCard.from_json(am, high)
-  env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params,
-                                   **(card_a.obs_layout.task_options() | task_overrides))
+  env, low = high_env_with_low(task, low, backend, **(card_a.obs_layout.task_options() | task_overrides))
   a_norm = ckpt.NORM in a_params  # A's observation statistics, saved beside its policy
   a_vnet = "v" in a_params["q"]  # A ran SB2's SAC (SACConfig.value_net)
   if config is None:
     config = configs.finetune_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm,
                                      value_net=a_vnet)
-  if init == "sac" and config.value_net != a_vnet:
+  if spec.init == "sac" and config.value_net != a_vnet:
     raise ckpt.CheckpointError(f"{high} was trained with value_net={a_vnet} and finetuning starts from its "
                                f"critics: pass --value-net {a_vnet} (or init='policy')")
-  card_b = lambda config: PolicyCard.from_env(env, "high", config, low=low_rec, task_overrides=task_overrides)
-  card_a.compatible_with(card_b(config).replace(source=str(low)), "finetune")
-  if lr is not None:
-    config = configs.replace(config, actor_lr=lr, critic_lr=lr, alpha_lr=lr)
-  if learning_starts is not None:
-    config = dataclasses.replace(config, learning_starts=int(learning_starts))
+  card_b = lambda config: PolicyCard.from_env(env, "high", config, low=dataclasses.asdict(low),
+                                              task_overrides=task_overrides)
+  card_a.compatible_with(card_b(config).replace(source=low.path), "finetune")
+  if spec.lr is not None:
+    config = configs.replace(config, actor_lr=spec.lr, critic_lr=spec.lr, alpha_lr=spec.lr)
+  if spec.learning_starts is not None:
+    config = dataclasses.replace(config, learning_starts=int(spec.learning_starts))
 
   seed_list = sac_train.seed_list(seeds)
   n = len(seed_list)
-  anneal_steps = anneal_frac * config.total_env_steps
+  anneal_steps = spec.anneal_frac * config.total_env_steps
 
   # Plug-ins of one trainer: every seed starts from A's SAC (or policy), with fresh optimiser states
   # and replay, and (kl > 0) keeps its own copy of the KL reference.
   pick = np.arange(n) % n_a
-  plugins = [start_plugin(a_params, pick, seed_list, config, high, init)]
-  if kl > 0:
+  plugins = [start_plugin(a_params, pick, seed_list, config, high, spec.init)]
+  if kl_weight > 0:
     reference = jax.tree.map(lambda x: x[reference_seed], ref_params["policy"])
     reference_norm = jax.tree.map(lambda x: x[reference_seed], ref_params.get(ckpt.NORM))
     policy_apply = sac_train.make_networks(env, config).policy_apply  # pure: the trainer's own is the same
-    plugins.append(kl_plugin(policy_apply, reference, kl, anneal_steps, mode, mean_only, reference_norm))
+    plugins.append(kl_plugin(policy_apply, reference, kl_weight, anneal_steps, spec.mode, spec.mean_only,
+                             reference_norm))
 
   meta = dict(card_b(config).to_json(), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
                                       params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),
                                       seeds=n_a, init_seed_indices=pick.tolist(),
                                       reference_seed=reference_seed,
-                                      reference_params=ref_meta.get("params", "final") if kl > 0 else None,
-                                      reference_params_env_steps=ref_meta.get("params_env_steps") if kl > 0 else None),
-                  init=init, kl=float(kl), mode=mode, mean_only=bool(mean_only), anneal_frac=float(anneal_frac),
-                  anneal_env_steps=float(anneal_steps))
-  label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl={kl:g}"
-  # a grid over the KL plug-in's kl_weight (hdt.transfer.sweep) records each point's beta
-  point_meta = lambda meta, h: dict(meta, **({"kl": h[WEIGHT]} if WEIGHT in h else {}))
-  return Stage(env, config, meta, label, plugins=tuple(plugins), save_extra=sac_extras, point_meta=point_meta)
+                                      reference_params=ref_meta.get("params", "final") if kl_weight > 0 else None,
+                                      reference_params_env_steps=ref_meta.get("params_env_steps") if kl_weight > 0 else None),
+                  init=spec.init, kl_weight=float(kl_weight), mode=spec.mode, mean_only=bool(spec.mean_only),
+                  anneal_frac=float(spec.anneal_frac), anneal_env_steps=float(anneal_steps))
+  label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl_weight={kl_weight:g}"
+  return Stage(env, config, meta, label, plugins=tuple(plugins), save_extra=sac_extras)

@@ -1,8 +1,10 @@
 """One call per stage: ``train_low``, ``train_high``, ``train_full``, each a vmapped seed sweep that
 writes a run directory (config.json, meta.json, metrics.csv, seed_<i>/ checkpoints). Each builds its
 :class:`hdt.transfer.runner.Stage` (``low_stage``, ``high_stage``, ``full_stage``: env, config, card,
-plug-ins) and hands it with its :class:`hdt.transfer.runner.RunOptions` to
-:func:`hdt.transfer.runner.run_stage`; meta.json is the run's :class:`hdt.transfer.card.PolicyCard`."""
+plug-ins) and hands it with its :class:`hdt.transfer.runner.RunOptions` (keyword ``options``: seeds,
+out, quiet, resume, save_every, overwrite) to :func:`hdt.transfer.runner.run_stage`; meta.json is the
+run's :class:`hdt.transfer.card.PolicyCard`. An HL's frozen LL is a run directory (or ``zoo:NAME``), or
+a :class:`hdt.transfer.card.LowRef` naming its seed and parameters."""
 
 from __future__ import annotations
 
@@ -17,8 +19,8 @@ from hdt.envs.agents import AGENTS
 from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.align import align_low
-from hdt.transfer.card import LOW_PARAMS, ObsLayout, PolicyCard, load_low, low_policy_fn  # noqa: F401 (part of this API)
+from hdt.transfer.align import AlignSpec, align_low
+from hdt.transfer.card import LowRef, PolicyCard, load_low, low_policy_fn  # noqa: F401 (part of this API)
 from hdt.transfer.hierarchy import HighLevelEnv
 from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
 
@@ -60,21 +62,18 @@ def check_env_overrides(overrides: dict, agent: str | None = None, task: str | N
       raise ValueError(f"option {name}={value!r}: expected {kind}, e.g. {name}={defaults[name]!r} (the default)")
 
 
-def train_low(agent: str, config: SACConfig | None = None, seeds=1, out=None, backend="auto",
-              quiet=False, imitate=None, disc=None, resume=False, save_every=None, overwrite=False,
-              **env_overrides) -> RunResult:
-  """Goal-conditioned LL of ``agent`` on its ``reach`` task (SPEC 3). With ``imitate=<LL run of A>``
-  the LL is aligned to A's behaviour by a discriminator (Algorithm 1, ``hdt.transfer.align``).
-  backend: the physics backend ("auto", "mjx", "native"); seeds, out, quiet, resume, save_every,
-  overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
+def train_low(agent: str, config: SACConfig | None = None, *, imitate: AlignSpec | str | Path | None = None,
+              backend: str = "auto", options: RunOptions = RunOptions(), **env_overrides) -> RunResult:
+  """Goal-conditioned LL of ``agent`` on its ``reach`` task (SPEC 3). With ``imitate`` (A's LL run, or
+  an :class:`hdt.transfer.align.AlignSpec`) the LL is aligned to A's behaviour by a discriminator
+  (Algorithm 1, :func:`hdt.transfer.align.align_low`). backend: the physics backend ("auto", "mjx",
+  "native"); options: how it runs (:class:`hdt.transfer.runner.RunOptions`)."""
   if imitate is not None:
-    return align_low(agent, imitate, config, disc=disc, seeds=seeds, out=out, backend=backend, quiet=quiet,
-                     resume=resume, save_every=save_every, overwrite=overwrite, **env_overrides)
-  options = RunOptions(seeds, out, quiet, resume, save_every, overwrite)
+    return align_low(agent, imitate, config, backend=backend, options=options, **env_overrides)
   return run_stage(low_stage(agent, config, backend, **env_overrides), options)
 
 
-def low_stage(agent: str, config: SACConfig | None = None, backend="auto", **env_overrides) -> Stage:
+def low_stage(agent: str, config: SACConfig | None = None, backend: str = "auto", **env_overrides) -> Stage:
   """The stage of :func:`train_low` (without ``imitate``)."""
   configs.check_config(config, allow_none=True)
   check_env_overrides(env_overrides, agent, "reach")
@@ -83,62 +82,42 @@ def low_stage(agent: str, config: SACConfig | None = None, backend="auto", **env
   return Stage(env, config, env_meta(env, "low", config, env_overrides=env_overrides), f"low {agent}")
 
 
-def hl_obs_layout(meta: dict) -> dict:
-  """The task options that give an HL checkpoint the observation it was trained on: the recorded
-  ``hl_obs`` (hdt.envs.tasks.Task.hl_relative / hl_absolute), or plain obs_hi for runs that predate it."""
-  return ObsLayout.from_json(meta.get("hl_obs")).task_options()
+def high_env_with_low(task: str, low: LowRef | str | Path, backend: str = "auto", **kw) -> tuple[HighLevelEnv, LowRef]:
+  """(the HL env of ``task`` over the frozen LL ``low``, the :class:`LowRef` an HL's card records of
+  it: with its parameters' env steps and the seed's content hash)."""
+  low = LowRef.of(low)
+  params, meta, _ = load_low(low.path, low.seed_index, low.params)
+  env = PolicyCard.from_json(meta, low.path).high_env(params["policy"], task, backend,
+                                                      low_obs_norm=params.get(ckpt.NORM), **kw)
+  return env, dataclasses.replace(low, params=meta["params"], params_env_steps=meta["params_env_steps"],
+                                  sha256=ckpt.content_hash(low.path, low.seed_index))
 
 
-def build_high_env(low_meta: dict, low_params, task: str, backend="auto", k=None, hl_horizon=None,
-                   record=False, delta_max=None, low_obs_norm=None, **task_overrides) -> HighLevelEnv:
-  """The HL env of ``task`` over an LL described by its checkpoint metadata
-  (:meth:`hdt.transfer.card.PolicyCard.high_env`)."""
-  return PolicyCard.from_json(low_meta).high_env(low_params, task, backend, k, hl_horizon, record, delta_max,
-                                                 low_obs_norm,
-                                                 **task_overrides)
+def high_env(task: str, low: LowRef | str | Path, backend: str = "auto", **kw) -> HighLevelEnv:
+  """The HL env of ``task`` over the frozen LL ``low``: a run directory (its seed 0 and its "best"
+  evaluation's parameters, as the authors compose) or a :class:`LowRef` naming another seed or its
+  "final" parameters; ``kw``: :meth:`hdt.transfer.card.PolicyCard.high_env`'s options (k, record, ...)
+  and task options."""
+  return high_env_with_low(task, low, backend, **kw)[0]
 
 
-def low_record(low: str | Path, low_seed: int, low_meta: dict) -> dict:
-  """What an HL's metadata records of the frozen LL it was trained over."""
-  return dict(path=str(low), seed_index=low_seed, params=low_meta["params"],
-              params_env_steps=low_meta["params_env_steps"], sha256=ckpt.content_hash(low, low_seed))
+def train_high(task: str, low: LowRef | str | Path, config: SACConfig | None = None, *, k: int | None = None,
+               backend: str = "auto", options: RunOptions = RunOptions(), **task_overrides) -> RunResult:
+  """HL SAC on ``task`` over the frozen LL ``low`` (a run directory, whose seed 0 drives every HL seed
+  with its "best" evaluation's parameters, as the authors; or a :class:`LowRef` naming another seed or
+  its "final" parameters). k: LL steps per HL decision (default the LL's). backend: the physics
+  backend ("auto", "mjx", "native"); options: how it runs (:class:`hdt.transfer.runner.RunOptions`)."""
+  return run_stage(high_stage(task, low, config, k, backend, **task_overrides), options)
 
 
-def high_env_with_low(task: str, low: str | Path, low_seed: int = 0, backend="auto",
-                      low_params: str = LOW_PARAMS, **kw) -> tuple[HighLevelEnv, dict]:
-  """(HL env of ``task`` over the frozen LL saved in ``low``, :func:`low_record` of that LL)."""
-  params, meta, _ = load_low(low, low_seed, ckpt.check_which(low_params, "low_params"))
-  return (build_high_env(meta, params["policy"], task, backend, low_obs_norm=params.get(ckpt.NORM), **kw),
-          low_record(low, low_seed, meta))
-
-
-def high_env(task: str, low: str | Path, low_seed: int = 0, backend="auto", low_params: str = LOW_PARAMS,
-             **kw) -> HighLevelEnv:
-  """The HL env of ``task`` over the frozen LL saved in ``low`` (its seed ``low_seed``; its "best"
-  evaluation's parameters by default, as the authors compose, or its "final" ones)."""
-  return high_env_with_low(task, low, low_seed, backend, low_params, **kw)[0]
-
-
-def train_high(task: str, low: str | Path, config: SACConfig | None = None, seeds=1, out=None,
-               backend="auto", low_seed: int = 0, k: int | None = None, quiet=False,
-               resume=False, save_every=None, low_params: str = LOW_PARAMS, overwrite=False,
-               **task_overrides) -> RunResult:
-  """HL SAC on ``task`` over the frozen LL in ``low`` (its seed ``low_seed`` drives every HL seed;
-  ``low_params``: the LL's "best" evaluation's parameters (default, as the authors) or "final").
-  backend: the physics backend ("auto", "mjx", "native"); seeds, out, quiet, resume, save_every,
-  overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
-  options = RunOptions(seeds, out, quiet, resume, save_every, overwrite)
-  return run_stage(high_stage(task, low, config, backend, low_seed, k, low_params, **task_overrides), options)
-
-
-def high_stage(task: str, low: str | Path, config: SACConfig | None = None, backend="auto", low_seed: int = 0,
-               k: int | None = None, low_params: str = LOW_PARAMS, **task_overrides) -> Stage:
+def high_stage(task: str, low: LowRef | str | Path, config: SACConfig | None = None, k: int | None = None,
+               backend: str = "auto", **task_overrides) -> Stage:
   """The stage of :func:`train_high`."""
   configs.check_config(config, allow_none=True)
   check_env_overrides(task_overrides, task=task)
-  env, low_rec = high_env_with_low(task, low, low_seed, backend, low_params, k=k, **task_overrides)
+  env, low = high_env_with_low(task, low, backend, k=k, **task_overrides)
   config = configs.high_config(task) if config is None else config
-  meta = env_meta(env, "high", config, low=low_rec, task_overrides=task_overrides)
+  meta = env_meta(env, "high", config, low=dataclasses.asdict(low), task_overrides=task_overrides)
   return Stage(env, config, meta, f"high {task}", save_extra=sac_extras)
 
 
@@ -148,17 +127,15 @@ def sac_extras(ts) -> dict:
   return {"target_q": ts.agent.target_q_params, "log_alpha": ts.agent.log_alpha}
 
 
-def train_full(agent: str, task: str, config: SACConfig | None = None, seeds=1, out=None,
-               backend="auto", quiet=False, resume=False, save_every=None, overwrite=False,
-               **env_overrides) -> RunResult:
-  """The flat 'Full' baseline: SAC on the task with the agent's own torques.
-  backend: the physics backend ("auto", "mjx", "native"); seeds, out, quiet, resume, save_every,
-  overwrite: see :class:`hdt.transfer.runner.RunOptions`."""
-  options = RunOptions(seeds, out, quiet, resume, save_every, overwrite)
+def train_full(agent: str, task: str, config: SACConfig | None = None, *, backend: str = "auto",
+               options: RunOptions = RunOptions(), **env_overrides) -> RunResult:
+  """The flat 'Full' baseline: SAC on the task with the agent's own torques. backend: the physics
+  backend ("auto", "mjx", "native"); options: how it runs (:class:`hdt.transfer.runner.RunOptions`)."""
   return run_stage(full_stage(agent, task, config, backend, **env_overrides), options)
 
 
-def full_stage(agent: str, task: str, config: SACConfig | None = None, backend="auto", **env_overrides) -> Stage:
+def full_stage(agent: str, task: str, config: SACConfig | None = None, backend: str = "auto",
+               **env_overrides) -> Stage:
   """The stage of :func:`train_full`."""
   configs.check_config(config, allow_none=True)
   check_env_overrides(env_overrides, agent, task)

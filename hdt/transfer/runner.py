@@ -77,7 +77,7 @@ class Stage:
   # in every seed's checkpoint (e.g. an aligned LL's discriminator, an HL's target critics)
   save_extra: Callable[[Any], dict] | None = None
   # point_meta(meta, {plug-in hyper name: value}) -> the meta.json of a grid point that sets the
-  # plug-ins' hyper (hdt.agents.plugins), e.g. its KL weight; default: meta with them as "plugin_hyper"
+  # plug-ins' hyper (hdt.agents.plugins); default: meta with each value under its name (kl_weight)
   point_meta: Callable[[dict, dict], dict] | None = None
   # {meta key: {field: value}}: fields of a meta.json section added after runs were saved, with the
   # value in effect before (e.g. hdt.agents.discriminator.ADDED_FIELDS): a run saved without them
@@ -134,7 +134,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
   grid = {k: [h[k] for h, _ in points] for k in points[0][0]}
   configs = [dataclasses.replace(config, **{k: v for k, v in h.items() if k in SWEEPABLE}) for h, _ in points]
   plugin_values = [{k: float(v) for k, v in h.items() if k not in SWEEPABLE} for h, _ in points]
-  point_meta = stage.point_meta or (lambda meta, values: dict(meta, plugin_hyper=values))
+  point_meta = stage.point_meta or (lambda meta, values: dict(meta, **values))
   metas = [point_meta(meta, v) if v else meta for v in plugin_values]
   check_train_memory(env, config, options.seeds, len(points))
   seeds = sac_train.seed_list(options.seeds)
