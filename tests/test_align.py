@@ -120,7 +120,7 @@ def test_discriminator_input_contains_z():
   cfg = D.DiscConfig(data="fixed")
   assert cfg.include_z and cfg.input_size == 6
   al = D.make_alignment(cfg, _taus(np.random.default_rng(1), 32, 0.1), total_env_steps=64, num_envs=1)
-  assert al.transition_extras is D.z_extras and "transition_extras" in al.plugins
+  assert al.transition_extras is D.z_extras and al.plugin.transition_extras is D.z_extras
   aux = al.aux_init(jax.random.PRNGKey(0))
   tr = Transition(obs=obs, action=jnp.zeros((1, 2)), reward=jnp.zeros(1), next_obs=nxt,
                   discount=jnp.ones(1), extras={"z": z, "first": jnp.ones(1)})

@@ -112,7 +112,7 @@ def test_cli_sweep_finetune_writes_one_run_per_kl_weight(point_low, point_high, 
 def test_weights_as_hyper_give_the_numbers_of_before():
   """Without a grid, the KL schedule (kl_weight x the anneal from 1) and the discriminator weight
   (disc_weight as w0) are bit for bit those of linear_anneal(kl_weight) and DiscConfig.weight; so is a
-  float32 grid value. (tests/test_plugins.py trains both plug-ins exactly as the old callables.)"""
+  float32 grid value."""
   import jax.numpy as jnp
   from hdt.agents import discriminator as D
   from hdt.agents.kl import linear_anneal

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from hdt.agents import replay
+from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig
 from hdt.agents.train import NONFINITE, eval_key, make_train, run, seed_keys, vmapped
 from toy_env import PointGoal
@@ -205,7 +206,7 @@ def test_replay_rejects_oversized_insert():
 
 
 def test_plugins_are_wired_into_the_training_step():
-  """aux_init/aux_update carry plug-in state, reward_fn sees it, the regulariser is scheduled."""
+  """A plug-in's init and update carry its state, its reward sees it, its regulariser is scheduled."""
   cfg = SACConfig(hidden_sizes=(8,), batch_size=4, buffer_size=64, total_env_steps=20,
                   steps_per_chunk=10, learning_starts=4)
   seen_steps = []
@@ -215,14 +216,14 @@ def test_plugins_are_wired_into_the_training_step():
     aux = {"count": aux["count"] + 1, "reward_sum": aux["reward_sum"] + transitions.reward.sum()}
     return aux, {"aux_count": aux["count"].astype(jnp.float32)}
 
-  trainer = make_train(
-      ENV, cfg,
-      aux_init=lambda key: {"count": jnp.zeros((), jnp.int32), "reward_sum": jnp.zeros(())},
-      aux_update=aux_update,
-      reward_fn=lambda aux, batch: jnp.full_like(batch.reward, 3.0) + 0.0 * aux["reward_sum"],
-      actor_regularizer=lambda params, obs: jnp.float32(2.0),
-      actor_regularizer_schedule=lambda env_steps: 0.5 * jnp.ones(()),
-  )
+  trainer = make_train(ENV, cfg, plugins=[Plugin(
+      "custom",
+      init=lambda key, agent: (agent, {"count": jnp.zeros((), jnp.int32), "reward_sum": jnp.zeros(())}),
+      update=aux_update,
+      reward=lambda aux, batch: jnp.full_like(batch.reward, 3.0) + 0.0 * aux["reward_sum"],
+      regularizer=lambda aux, params, obs: jnp.float32(2.0),
+      schedule=lambda env_steps: 0.5 * jnp.ones(()),
+  )])
   ts, m = jax.jit(trainer.run_chunk)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
   assert int(ts.aux["count"]) == 10 and len(seen_steps) == 1
   np.testing.assert_allclose(float(ts.aux["reward_sum"]), float(jnp.sum(ts.replay.data.reward)), rtol=1e-5)

@@ -141,11 +141,6 @@ def disc_input(obs: jax.Array, next_obs: jax.Array, z: jax.Array | None = None) 
   return jnp.concatenate(parts, axis=-1)
 
 
-def tau_from(obs: jax.Array, next_obs: jax.Array) -> jax.Array:
-  """``(g - s_t, g - s_{t+1})`` without z."""
-  return disc_input(obs, next_obs)
-
-
 def disc_loss(apply_fn, params, x, labels):
   """Mean squared error between ``D(x) = sigmoid(logit)`` and the soft labels
   (``tf.losses.mean_squared_error`` in ``DSAC.setup_model``). Returns (loss, accuracy at 0.5)."""
@@ -248,12 +243,6 @@ class Alignment(NamedTuple):
     return Plugin(name="discriminator", init=lambda key, agent: (agent, self.aux_init(key)),
                   update=self.aux_update, reward=self.reward_fn,
                   transition_extras=self.transition_extras, hyper={WEIGHT: float(self.cfg.weight)})
-
-  @property
-  def plugins(self) -> dict:
-    """The same as make_train's keyword plug-ins (for callers that predate :attr:`plugin`)."""
-    out = dict(reward_fn=self.reward_fn, aux_init=self.aux_init, aux_update=self.aux_update)
-    return out | ({"transition_extras": self.transition_extras} if self.transition_extras else {})
 
 
 def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_envs: int = 1,

@@ -6,10 +6,10 @@ Gaussians ``N(loc, scale)`` their networks output (the tanh is the same bijectio
 of the squashed distributions equals the KL of the pre-tanh ones), and the weight ``w`` decays
 linearly from ``kl_weight`` (the paper's beta) to ``1e-5 kl_weight`` (KLSAC's floor).
 
-``make_kl_regularizer`` returns a function with the ``actor_regularizer(policy_params, obs[, obs_norm]) -> scalar``
-signature of :func:`hdt.agents.sac.make_losses` / :func:`hdt.agents.train.make_train`;
-``linear_anneal`` returns an ``actor_regularizer_schedule(env_steps) -> weight``; ``kl_plugin`` is both
-as a :class:`hdt.agents.plugins.Plugin` whose reference lives per seed in the training state.
+``kl_plugin`` is the term as a :class:`hdt.agents.plugins.Plugin` whose reference lives per seed in
+the training state, weighted by ``linear_anneal``; ``make_kl_regularizer`` is the same KL to a fixed
+reference as one function ``(policy_params, obs[, obs_norm]) -> scalar`` (the ``actor_regularizer`` of
+:func:`hdt.agents.sac.make_losses`), e.g. to measure it.
 """
 
 from __future__ import annotations

@@ -50,25 +50,6 @@ def values(plugin: Plugin, hyper: Mapping | None) -> dict:
   return {k: (hyper[k] if hyper and k in hyper else v) for k, v in plugin.hyper.items()}
 
 
-def from_callables(actor_regularizer=None, actor_regularizer_schedule=None, reward_fn=None, aux_init=None,
-                   aux_update=None, transition_extras=None, name: str = "custom") -> Plugin | None:
-  """The plug-in of make_train's keyword callables (``aux_init(key)`` state; a regulariser without
-  state), or None when none is given."""
-  given = (actor_regularizer, actor_regularizer_schedule, reward_fn, aux_init, aux_update, transition_extras)
-  if all(f is None for f in given):
-    return None
-  return Plugin(
-      name=getattr(actor_regularizer, "metric_name", name),
-      init=None if aux_init is None else (lambda key, agent: (agent, aux_init(key))),
-      update=aux_update,
-      reward=reward_fn,
-      regularizer=None if actor_regularizer is None else (
-          lambda state, params, obs, *obs_norm: actor_regularizer(params, obs, *obs_norm)),
-      schedule=actor_regularizer_schedule,
-      transition_extras=transition_extras,
-  )
-
-
 def check(plugins: Sequence[Plugin]) -> tuple[Plugin, ...]:
   """``plugins`` as a tuple, refused in one line where they cannot be combined."""
   plugins = tuple(plugins)

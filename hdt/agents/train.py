@@ -42,22 +42,12 @@ from hdt.agents import sharding as sharding_lib
 from hdt.agents import replay as replay_lib
 from hdt.agents.replay import Transition
 from hdt.agents.sac import (
-    ActorRegularizer,
-    RewardFn,
     SWEEPABLE,
     SACConfig,
     SACState,
     init_sac_state,
     make_update,
 )
-
-# aux_init(key) -> aux_state ; aux_update(aux_state, transitions, env_steps, key) -> (aux_state, metrics)
-AuxInit = Callable[[jax.Array], Any]
-AuxUpdate = Callable[[Any, Transition, jax.Array, jax.Array], tuple[Any, dict]]
-# transition_extras(state, next_state) -> pytree stored with each transition (Transition.extras)
-TransitionExtras = Callable[[Any, Any], Any]
-# actor_regularizer_schedule(env_steps) -> multiplier of the actor regulariser (e.g. annealed beta)
-Schedule = Callable[[jax.Array], jax.Array]
 
 
 @struct.dataclass
@@ -189,12 +179,6 @@ def make_train(
     *,
     networks: nets.SACNetworks | None = None,
     plugins: Sequence[plugin_lib.Plugin] = (),
-    actor_regularizer: ActorRegularizer | None = None,
-    actor_regularizer_schedule: Schedule | None = None,
-    reward_fn: RewardFn | None = None,
-    aux_init: AuxInit | None = None,
-    aux_update: AuxUpdate | None = None,
-    transition_extras: TransitionExtras | None = None,
 ) -> Trainer:
   """Builds the pure functions ``init``, ``run_chunk``, ``evaluate`` and ``train``.
 
@@ -202,19 +186,11 @@ def make_train(
     transition_extras; each optional), folded over in order. Their per-seed states are merged into
     ``TrainState.aux``. Plug-in ``i`` gets the key :func:`plugin_key` ``(seed key, i)`` at init and a
     per-step key derived the same way. Their declared ``hyper`` names join ``Trainer.sweepable``.
-  The keyword callables are one more plug-in, placed first (kept for callers that predate plugins):
-    actor_regularizer(policy_params, obs) -> scalar, added to the actor loss, multiplied by
-      actor_regularizer_schedule(env_steps) (default 1).
-    reward_fn(aux_state, batch) -> rewards, recomputes sampled rewards before the critic target.
-    aux_init(key) -> aux_state, aux_update(aux_state, transitions, env_steps, key) -> (aux_state,
-      metrics): plug-in state carried in TrainState.aux, updated once per training step after the
-      new transitions were inserted (metrics are averaged over the chunk).
+  networks: the SAC networks (default :func:`make_networks`).
   """
   obs_size, act_size = int(env.observation_size), int(env.action_size)
   networks = make_networks(env, config) if networks is None else networks
-  legacy = plugin_lib.from_callables(actor_regularizer, actor_regularizer_schedule, reward_fn, aux_init,
-                                     aux_update, transition_extras)
-  plugins = plugin_lib.check(([legacy] if legacy else []) + list(plugins))
+  plugins = plugin_lib.check(plugins)
   sweepable = SWEEPABLE + plugin_lib.sweepable(plugins, SWEEPABLE)
   n_envs, batch_size = config.num_envs, config.batch_size
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
@@ -585,7 +561,8 @@ def run(
     on_chunk: Callable[[int, TrainState, dict, dict | None], None] | None = None,
     hyper: dict | None = None,
     cache_key: str | None = None,
-    **plugins,
+    networks: nets.SACNetworks | None = None,
+    plugins: Sequence[plugin_lib.Plugin] = (),
 ) -> RunResult:
   """Trains ``len(seeds)`` seeds in lock-step (vmapped) and returns params and history.
 
@@ -600,7 +577,8 @@ def run(
   eval_at_start: also evaluate before the first chunk (the untrained / resumed policy).
   trainer: a :class:`Trainer` from ``make_train(env, config, ...)`` to reuse (with its compiled
     functions, see :func:`vmapped`); its config may differ from ``config`` only in
-    ``total_env_steps``. Without it, ``make_train(env, config, **plugins)`` is built.
+    ``total_env_steps``. Without it, ``make_train(env, config, networks=networks, plugins=plugins)``
+    is built.
   initial_history: the history (as returned in RunResult.history) of the run ``initial_state``
     came from; the new records are appended to it, so a resumed run returns the same history as
     an uninterrupted one.
@@ -618,7 +596,7 @@ def run(
   cache_key: a string naming everything the trainer's programs depend on besides hdt's code (env and
     its options, config, plug-ins); with it, the compiled programs are saved and later runs with the
     same key load them (:func:`hdt.cache.compiled`) instead of tracing and compiling (one device).
-  plugins: forwarded to :func:`make_train` (actor_regularizer, reward_fn, aux_init, ...).
+  networks, plugins: as :func:`make_train` (when ``trainer`` is None).
 
   After every chunk the loss terms and parameters are checked (flags computed inside the jitted
   chunk): the first NaN/inf raises :class:`TrainingDiverged` naming the term, env step and seed,
@@ -641,10 +619,10 @@ def run(
         f"{chunk_steps}"
     )
   if trainer is None:
-    trainer = make_train(env, config, **plugins)
+    trainer = make_train(env, config, networks=networks, plugins=plugins)
   else:
-    if plugins:
-      raise ValueError(f"pass plugins {sorted(plugins)} to make_train, not with trainer=")
+    if plugins or networks is not None:
+      raise ValueError("pass networks and plugins to make_train, not with trainer=")
     same = dict(total_env_steps=config.total_env_steps) | {k: getattr(config, k) for k in hyper or {}
                                                            if k in SWEEPABLE}
     if dataclasses.replace(trainer.config, **same) != config:

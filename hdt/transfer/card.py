@@ -19,7 +19,7 @@ import dataclasses
 import os
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -405,14 +405,6 @@ def check_level(level, source, use: str) -> None:
     who = "compose" if use == "compose" else "finetune_high"
     raise ckpt.CheckpointError(f"{source} holds a {level!r}-level policy; {who} needs an HL "
                                f"(from `hdt train high`) as high=")
-
-
-def load_card(run: str | Path, seed_index: int = 0, which: str = "final"):
-  """(params, card) of one seed of a saved run."""
-  params, meta = ckpt.load(run, seed_index, which)
-  card = PolicyCard.from_json(meta, Path(run))
-  card.check_params(params)
-  return params, card
 
 
 def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):

@@ -16,7 +16,6 @@ saying what to do.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import logging
 import math

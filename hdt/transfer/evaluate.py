@@ -14,7 +14,7 @@ from hdt.agents import acting
 from hdt.envs.tasks import TASKS, get_task
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import names
-from hdt.transfer.card import LOW_PARAMS, REQUIRED, PolicyCard
+from hdt.transfer.card import LOW_PARAMS, PolicyCard
 from hdt.transfer.memory import check_memory, state_bytes
 
 
@@ -46,9 +46,6 @@ class Policy:
   @property
   def num_seeds(self) -> int:
     return int(jax.tree.leaves(self.params)[0].shape[0])
-
-
-POLICY_FIELDS = REQUIRED  # what a policy's card must hold to be run
 
 
 def _load(run, which: str, what: str):
