@@ -15,6 +15,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 from pathlib import Path
 from typing import IO, Any, Callable, Iterator
 
@@ -49,14 +50,26 @@ def is_temp(name: str) -> bool:
   return name.startswith(".") and name.endswith(TMP_SUFFIX)
 
 
-def remove(path: Path) -> None:
-  """Deletes a file or directory tree; one that is already gone is fine."""
+def remove(path: Path, settle: float = 0.0) -> None:
+  """Deletes a file or directory tree; one that is already gone is fine. ``settle``: seconds it must
+  stay gone, deleted again meanwhile (a failed writer's threads may still be creating files in it)."""
   path = Path(path)
-  if path.is_dir() and not path.is_symlink():
-    shutil.rmtree(path, ignore_errors=True)
-  else:
-    with contextlib.suppress(FileNotFoundError):
-      path.unlink()
+  deadline = time.monotonic() + 10 * settle
+  gone_since = None
+  while True:
+    if path.is_dir() and not path.is_symlink():
+      shutil.rmtree(path, ignore_errors=True)
+    else:
+      with contextlib.suppress(FileNotFoundError):
+        path.unlink()
+    now = time.monotonic()
+    if os.path.lexists(path):
+      gone_since = None
+    elif gone_since is None:
+      gone_since = now
+    if (gone_since is not None and now - gone_since >= settle) or now >= deadline:
+      return
+    time.sleep(0.1)
 
 
 @contextlib.contextmanager
@@ -135,7 +148,7 @@ def replace_dir(final, write: Callable[[Path], None]) -> Path:
     if old(final).exists():
       shutil.rmtree(old(final))
   except BaseException as e:
-    remove(tmp)
+    remove(tmp, settle=1.0 if isinstance(e, OSError) else 0.0)  # a failed write's stragglers too
     if isinstance(e, OSError) and (not e.filename or str(e.filename).startswith(str(tmp))):
       e.filename = str(final) + str(e.filename or "")[len(str(tmp)):]  # the temporary is gone
     raise

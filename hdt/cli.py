@@ -987,10 +987,11 @@ def _quiet_library_noise() -> None:
   import logging
   import threading
   logging.getLogger("absl").setLevel(logging.CRITICAL)  # orbax logs each failed writer thread with a traceback
-  if not getattr(sys.excepthook, "hdt", False):
-    shown, shown_in_thread = sys.excepthook, threading.excepthook
+  if not getattr(sys.excepthook, "hdt", False):  # C callbacks report through the unraisable hook
+    shown, in_thread, unraisable = sys.excepthook, threading.excepthook, sys.unraisablehook
     sys.excepthook = lambda kind, e, tb: None if _is_noise(e) else shown(kind, e, tb)
-    threading.excepthook = lambda a: None if _is_noise(a.exc_value) else shown_in_thread(a)
+    threading.excepthook = lambda a: None if _is_noise(a.exc_value) else in_thread(a)
+    sys.unraisablehook = lambda u: None if _is_noise(u.exc_value) else unraisable(u)
     sys.excepthook.hdt = True
 
 

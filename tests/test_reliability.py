@@ -807,7 +807,24 @@ def test_a_full_disk_is_one_line_and_leaves_no_half_written_run(small_disk, tmp_
                        cwd=tmp_path)
   assert out.returncode == 1 and out.stderr.strip().splitlines() == [out.stderr.strip()], out.stderr[-3000:]
   assert out.stderr.startswith(f"hdt: error: no space left on the device of {small_disk / 'cli' / 'state'}")
-  assert "free space there or pass an --out on another disk" in out.stderr and not any(small_disk.iterdir())
+  assert "free space there or pass an --out on another disk" in out.stderr
+  assert not any(small_disk.iterdir()), sorted(map(str, small_disk.rglob("*")))
+
+
+def test_a_read_only_out_is_one_line_before_anything_is_loaded(tmp_path, capsys):
+  """A read-only mount (which root's os.access does not see) is refused before anything is written."""
+  from hdt.cli import main
+  ro = tmp_path / "ro"
+  ro.mkdir()
+  if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)], capture_output=True).returncode:
+    pytest.skip("cannot mount a read-only tmpfs here (needs root)")
+  try:
+    assert main(["train", "low", "--agent", "point", "--preset", "smoke", "--quiet", "--out", str(ro / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"error: --out={ro / 'run'}: cannot write in {ro} (permission denied or a read-only file "
+                   f"system); pass a directory you can write to"), err
+  finally:
+    subprocess.run(["umount", "-l", str(ro)], capture_output=True)
 
 
 def test_a_ctrl_c_a_library_swallowed_still_stops_the_run(tmp_path):

@@ -21,6 +21,7 @@ import logging
 import math
 import os
 import re
+import threading
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -74,10 +75,13 @@ _OS_ERROR = re.compile(r"os_error_code='?(\d+)")
 def _orbax_save(path: Path, tree) -> None:
   """``tree`` saved by orbax at ``path``; a file-system failure (a full disk, a read-only mount) is
   raised as the OSError it is, naming ``path``."""
+  before = set(threading.enumerate())
   try:
     with _quiet_orbax():
       ocp.PyTreeCheckpointer().save(path, tree)
   except Exception as e:  # orbax wraps OS errors in ValueError and others
+    for t in set(threading.enumerate()) - before:  # its other writers: done before the caller cleans up
+      t.join(timeout=30)
     code = _OS_ERROR.search(str(e))
     if code is None:
       raise
