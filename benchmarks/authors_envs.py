@@ -380,7 +380,7 @@ def hdt_numbers(policy, task, episodes, key=1234):
   n = policy.num_seeds
 
   def one(params, norm, low_params, low_norm, k):
-    if policy.low_meta is None:
+    if policy.low_card is None:
       env = policy.card.make_env(task)
     else:
       env = policy.low_card.high_env(low_params, task, delta_max=policy.delta_max, low_obs_norm=low_norm,
@@ -391,7 +391,7 @@ def hdt_numbers(policy, task, episodes, key=1234):
   out = jax.device_get(jax.jit(jax.vmap(one))(policy.params, policy.obs_norm, policy.low_params,
                                               policy.low_obs_norm, keys))
   out = {k: np.asarray(v) for k, v in out.items()}
-  if policy.low_meta is None:
+  if policy.low_card is None:
     return [dict(success=float(out["success_max"][i]), goal_dist_final=float(out["goal_dist_final"][i]),
                  goal_dist=float(out["goal_dist"][i]), return_=float(out["return"][i])) for i in range(n)]
   # per-HL-step metrics are means over the episode's HL steps: times its length for per-episode sums
@@ -461,7 +461,7 @@ def main(argv=None) -> int:
     pol = compose(args.high, args.low)
     check_card(pol.card, agent="point", k=K, delta_max=DELTA_MAX)
     check_card(pol.low_card, agent="point", k=K, delta_max=DELTA_MAX)
-    if pol.meta.get("hl_horizon", HL_HORIZON) != HL_HORIZON or pol.delta_max != DELTA_MAX:
+    if (pol.card.hl_horizon or HL_HORIZON) != HL_HORIZON or pol.delta_max != DELTA_MAX:
       raise SystemExit(f"{args.high}: expected hl_horizon {HL_HORIZON} and a goal box of {DELTA_MAX}")
     check_adapter()
     hl_apply, ll_apply = jitted_policy(pol.card), jitted_policy(pol.low_card)
@@ -471,8 +471,8 @@ def main(argv=None) -> int:
             for i in range(pol.num_seeds)]
     theirs = hdt_numbers(pol, "waypoint", args.episodes)
     keys = ("return_", "waypoints", "ll_steps_per_hl_step")
-    result["high"] = dict(run=args.high, low_run=args.low, params=pol.meta.get("params"),
-                          low_params=pol.low_meta.get("params"), hl_layout=layout.to_json(),
+    result["high"] = dict(run=args.high, low_run=args.low, params=pol.card.loaded,
+                          low_params=pol.low_card.loaded, hl_layout=layout.to_json(),
                           hdt=summarize(theirs, keys), authors=summarize(ours, keys + ("bonus_steps", "stale_waypoint_obs")))
     for k in keys:
       table.append([f"HL: {k.rstrip('_')}", result["high"]["hdt"][k]["mean"],

@@ -42,6 +42,7 @@ from hdt.transfer import rundir
 from hdt.transfer import configs
 from hdt.transfer.evaluate import compose, evaluate, load_policy
 from hdt.transfer.align import AlignSpec
+from hdt.transfer.card import PolicyCard
 from hdt.transfer.finetune import FinetuneSpec, finetune_high
 from hdt.transfer.pipeline import train_full, train_high, train_low
 from hdt.transfer.runner import RunOptions, RunResult
@@ -105,7 +106,8 @@ def reuse_or_train(run_dir: Path, config, seeds: int, train: Callable[[], RunRes
     same = False
   if same:
     print(f"reusing {run_dir}", file=sys.stderr, flush=True)
-    return RunResult(run_dir, None, read_history(run_dir / "metrics.csv", meta["seeds"]), meta)
+    return RunResult(run_dir, None, read_history(run_dir / "metrics.csv", meta["seeds"]),
+                     PolicyCard.from_json(meta, run_dir))
   if run_dir.exists():
     rundir.discard(run_dir)  # a stale hdt run with other settings (anything else is refused)
   return train()
@@ -115,10 +117,10 @@ def low(agent: str, pr: dict, out: Path, seeds: int, quiet: bool, name: str | No
         imitate: RunResult | None = None, **env_overrides) -> RunResult:
   """B's or A's LL on reach; ``imitate=A's LL run`` aligns it to A with A's discriminator config."""
   cfg = low_cfg(agent, pr)
-  name = name or f"{agent}_low" + (f"_aligned_{imitate.meta['agent']}" if imitate else "")
+  name = name or f"{agent}_low" + (f"_aligned_{imitate.card.agent}" if imitate else "")
   kw, expect = dict(env_overrides), {"env_overrides": env_overrides}
   if imitate is not None:
-    disc = configs.disc_config(imitate.meta["agent"])
+    disc = configs.disc_config(imitate.card.agent)
     kw |= dict(imitate=AlignSpec(imitate.run_dir, disc))
     expect |= {"discriminator": dataclasses.asdict(disc)}
   return reuse_or_train(out / name, cfg, seeds, expect=expect, train=lambda: train_low(
@@ -130,7 +132,7 @@ def high(task: str, low_run: RunResult, pr: dict, out: Path, seeds: int, quiet: 
   """A's HL on ``task`` over ``low_run``: the preset's HL budget, or ``steps`` HL decisions."""
   task_kw = configs.task_options(pr["sac"], task) | task_kw  # paper: the authors' task setup
   cfg = high_cfg(task, steps, pr)
-  name = name or f"{low_run.meta['agent']}_high_{task}"
+  name = name or f"{low_run.card.agent}_high_{task}"
   return reuse_or_train(out / name, cfg, seeds, expect={"task_overrides": task_kw}, train=lambda: train_high(
       task, low_run.run_dir, cfg, options=RunOptions(seeds=seeds, out=out / name, quiet=quiet), **task_kw))
 
@@ -298,7 +300,7 @@ def finetune_study(st: FinetuneStudy, preset: str, pr: dict, out: Path, seeds: i
   a_low = timed(minutes, "A low", lambda: low(st.a, pr, out, seeds, quiet))
   a_high = timed(minutes, "A high", lambda: high(task, a_low, pr, out, seeds, quiet, **tkw))
   b_low = timed(minutes, "B low", lambda: low(st.b, pr, out, seeds, quiet, **dict(st.b_low)))
-  k = b_low.meta["k"]
+  k = b_low.card.k
   zero = eval_hl(a_high, b_low, task, pr["episodes"], **tkw)
   hp = configs.finetune_params(task)
   ft_cfg = configs.replace(high_cfg(task, pr["ft"] or configs.hl_budget(task), pr), actor_lr=hp["lr"],

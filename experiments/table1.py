@@ -45,7 +45,7 @@ def run(preset: str = "cpu", out: Path = Path("runs/table1"), seeds: int | None 
         results[f"{agent}/{name}"] = dict(
             metric=r["metric"], mean=r["mean"], std=r["std"], per_seed=r["per_seed"],
             paper=PAPER.get((agent, name)), low_steps=C.low_cfg(agent, pr).total_env_steps,
-            high_steps=high.meta["sac"]["total_env_steps"], seeds=seeds, episodes=pr["episodes"])
+            high_steps=high.card.sac["total_env_steps"], seeds=seeds, episodes=pr["episodes"])
         print(name, agent, results[f"{agent}/{name}"], file=sys.stderr, flush=True)
     results[f"{agent}/minutes"] = (time.time() - t0) / 60
     C.write_result("table1", preset, results)

@@ -413,12 +413,12 @@ def cmd_train(args) -> int:
     res = pipeline.train_low(args.agent, cfg, backend=args.backend, options=_options(args, out, seeds), **overrides)
   elif args.level == "high":
     _check_agent_task(task=args.task)
-    low_meta = pipeline.load_low(args.low, args.low_seed)[1]  # checked to be a usable LL
+    low_card = pipeline.load_low(args.low, args.low_seed)[1]  # checked to be a usable LL
     if args.k is not None and args.k <= 0:
       raise CLIError(f"--k {args.k}: give a positive number of LL steps per HL action")
     overrides = configs.task_options(args.preset, args.task) | overrides
     cfg = sac_config(args, "high", task=args.task)
-    out = _out_dir(args, f"high-{args.task}-{_label(low_meta['agent'])}", reads={"low": args.low})
+    out = _out_dir(args, f"high-{args.task}-{_label(low_card.agent)}", reads={"low": args.low})
     res = pipeline.train_high(args.task, LowRef(args.low, args.low_seed, args.low_params), cfg, k=args.k,
                               backend=args.backend, options=_options(args, out, seeds), **overrides)
   else:
@@ -434,11 +434,11 @@ def cmd_align(args) -> int:
   from hdt.transfer.align import AlignSpec, align_low
   _check_agent_task(args.agent)
   from hdt.transfer.pipeline import check_env_overrides, load_low
-  imitate_meta = load_low(args.imitate)[1]  # fails early, with the checkpoint's own message
+  imitate = load_low(args.imitate)[1]  # fails early, with the checkpoint's own message
   check_env_overrides(_key_values(args.set, "--set"), args.agent, "reach")
-  disc = _disc(args, imitate_meta["agent"])
+  disc = _disc(args, imitate.agent)
   cfg = sac_config(args, "low", args.agent)
-  out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate_meta['agent'])}",
+  out = _out_dir(args, f"align-{_label(args.agent)}-to-{_label(imitate.agent)}",
                  reads={"imitate": args.imitate})
   spec = AlignSpec(args.imitate, disc, n_offline=args.n_offline, imitate_params=args.imitate_params)
   res = align_low(args.agent, spec, cfg, backend=args.backend, options=_options(args, out, _seeds(args)),
@@ -446,9 +446,9 @@ def cmd_align(args) -> int:
   return _finish(res, args)
 
 
-def _a_sac(a_meta: dict) -> dict:
-  """A's network and SAC kind: a finetune starts from A's whole SAC."""
-  return dict(hidden_sizes=tuple(a_meta["hidden_sizes"]), value_net=bool(a_meta.get("sac", {}).get("value_net", False)))
+def _a_sac(a) -> dict:
+  """A's network and SAC kind (``a``: A's HL card): a finetune starts from A's whole SAC."""
+  return dict(hidden_sizes=a.hidden_sizes, value_net=bool(a.sac.get("value_net", False)))
 
 
 def _finetune_spec(args):
@@ -468,11 +468,10 @@ def cmd_finetune(args) -> int:
   _check_agent_task(task=args.task)
   spec = _finetune_spec(args)
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
-  hm = ckpt.load_meta(args.high)
-  PolicyCard.from_json(hm, args.high)  # every field of its type, before its hidden sizes are used
-  lm = load_low(args.low, args.low_seed)[1]
-  cfg = sac_config(args, "finetune", task=args.task, **_a_sac(hm))  # the task's finetuning lr unless set
-  out = _out_dir(args, f"finetune-{args.task}-{_label(hm['agent'])}-to-{_label(lm['agent'])}-kl{spec.kl_weight:g}",
+  a = PolicyCard.from_json(ckpt.load_meta(args.high), args.high)  # every field of its type, before it is used
+  b = load_low(args.low, args.low_seed)[1]
+  cfg = sac_config(args, "finetune", task=args.task, **_a_sac(a))  # the task's finetuning lr unless set
+  out = _out_dir(args, f"finetune-{args.task}-{_label(a.agent)}-to-{_label(b.agent)}-kl{spec.kl_weight:g}",
                  reads={"high": args.high, "low": args.low})
   res = finetune_high(args.high, LowRef(args.low, args.low_seed, args.low_params), args.task, cfg, spec=spec,
                       backend=args.backend, options=_options(args, out, _seeds(args)),
@@ -518,11 +517,11 @@ def cmd_eval(args) -> int:
     if highs or lows:
       raise CLIError("--policy evaluates a flat policy: do not combine it with --high/--low")
     pol = load_policy(args.policy, args.params)
-    task = args.task or pol.meta["task"]
+    task = args.task or pol.card.task
   elif len(highs) == 1 and len(lows) == 1:
     pol = compose(next(iter(highs.values())), next(iter(lows.values())), box=args.box, which=args.params,
                   low_which=args.low_params)
-    task = args.task or pol.meta["task"]
+    task = args.task or pol.card.task
   elif highs and lows:
     first = next(iter(highs.values()))
     task = args.task or ckpt.require(ckpt.load_meta(first), {"task": str}, first)["task"]
@@ -633,7 +632,7 @@ def cmd_sweep(args) -> int:
   if args.level == "finetune":
     from hdt.transfer.finetune import load_high
     load_high(args.high)  # checked to be an HL
-  disc = _disc(args, pipeline.load_low(args.imitate)[1]["agent"]) if args.level == "align" else None
+  disc = _disc(args, pipeline.load_low(args.imitate)[1].agent) if args.level == "align" else None
   imitate = {"imitate": AlignSpec(args.imitate, disc)} if disc is not None else {}
   sweep.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], imitate)
   with rundir.claim(root, "sweep", overwrite=args.overwrite, reads=reads):
@@ -651,12 +650,13 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> l
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import sweep
   from hdt.transfer.align import AlignSpec
-  from hdt.transfer.card import LowRef
+  from hdt.transfer.card import LowRef, PolicyCard
   from hdt.transfer.runner import RunOptions
   level = {"align": "low"}.get(args.level, args.level)  # of the SAC config
   extra = {}
   if args.level == "finetune":  # as `hdt finetune`, and the preset's task options
-    extra = {k: v for k, v in _a_sac(ckpt.load_meta(args.high)).items() if k not in grid}
+    a = PolicyCard.from_json(ckpt.load_meta(args.high), args.high)
+    extra = {k: v for k, v in _a_sac(a).items() if k not in grid}
     overrides = configs.task_options(args.preset, args.task) | overrides
   names, runs = [], []
   for values in itertools.product(*grid.values()):

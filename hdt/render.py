@@ -193,7 +193,7 @@ def _hl_episode(policy, task: str, config: RenderConfig, key: int):
   """(model, qpos, sub-goal, target) of one HL episode (at most ``max_steps`` LL steps)."""
   from hdt.envs.tasks import get_task
   from hdt.transfer.evaluate import trajectory
-  overrides = dict(policy.meta.get("task_overrides") or {}) if task == policy.meta["task"] else {}
+  overrides = dict(policy.card.task_overrides or {}) if task == policy.card.task else {}
   # Every HL step takes one LL step or more: no more HL steps than frames are needed.
   overrides["hl_horizon"] = min(overrides.get("hl_horizon", get_task(task).hl_horizon), config.max_steps)
   tr = trajectory(policy, task, seed_index=config.seed_index, key=key, backend=config.backend, **overrides)
@@ -233,13 +233,13 @@ def rollout(policy, task: str | None = None, config: RenderConfig = RenderConfig
   config.check()
   if not 0 <= config.seed_index < policy.num_seeds:
     raise ValueError(f"seed_index={config.seed_index}: the policy has seeds 0..{policy.num_seeds - 1}")
-  task = task or policy.meta["task"]
+  task = task or policy.card.task
   task_obj = get_task(task)
-  episode = _hl_episode if policy.low_meta is not None else _flat_episode
+  episode = _hl_episode if policy.low_card is not None else _flat_episode
   parts = [episode(policy, task, config, config.key + i) for i in range(config.episodes)]
   spec = _agent(policy)
   cat = lambda i: np.concatenate([np.asarray(p[i], np.float64) for p in parts])
-  has_subgoal = policy.low_meta is not None or task_obj.low_level
+  has_subgoal = policy.low_card is not None or task_obj.low_level
   radius = _target_radius(task_obj)
   model = parts[0][0]
   return Clip(model=model, qpos=cat(1), subgoal=cat(2) if has_subgoal else None,

@@ -138,10 +138,10 @@ def _trajectory_section(run_dir: Path, meta: dict, out: Path) -> str:
   policy = compose(run_dir, low)
   overrides = meta.get("task_overrides") or {}
   traj = trajectory(policy, meta["task"], **overrides)
-  lm = policy.low_meta
-  model = make(lm["agent"], meta["task"], **(lm.get("env_overrides") or {}) | overrides).mj_model
+  lc = policy.low_card
+  model = make(lc.agent, meta["task"], **dict(lc.env_overrides or {}) | overrides).mj_model
   png = plots.trajectory(traj, model, out / "trajectory.png",
-                         title=f"{meta['task']}: HL seed 0 driving {lm['agent']}'s LL")
+                         title=f"{meta['task']}: HL seed 0 driving {lc.agent}'s LL")
   ret = float(np.sum(traj["rewards"]))
   return f"One deterministic episode (return {ret:.3g}):\n\n![trajectory]({png.name})"
 

@@ -219,13 +219,13 @@ def test_align_low_end_to_end_and_meta(point_low, tmp_path):
   assert np.all(np.isfinite(res.history["disc/loss"]))
 
   # The discriminator is saved with the LL (inspect / resume the alignment) and reloads exactly.
-  logit, m = load_discriminator(tmp_path / "aligned")
-  assert m["aligned_to"]["tau_scale"] == 1.0  # the authors feed raw goal-space units
+  logit, card = load_discriminator(tmp_path / "aligned")
+  assert card.aligned_to.tau_scale == 1.0  # the authors feed raw goal-space units
   tau = collect_offline(point_low.run_dir, 64, jax.random.PRNGKey(3), num_envs=16)
-  disc = D.Discriminator(tuple(m["discriminator"]["hidden_sizes"]))
+  disc = D.Discriminator(tuple(card.extra["discriminator"]["hidden_sizes"]))
   want = disc.apply(jax.tree.map(lambda x: x[0], res.params["discriminator"]), tau)
   np.testing.assert_allclose(np.asarray(logit(tau)), np.asarray(want), rtol=1e-5, atol=1e-6)
-  assert load_low(tmp_path / "aligned")[1]["level"] == "low"  # still an ordinary LL checkpoint
+  assert load_low(tmp_path / "aligned")[1].level == "low"  # still an ordinary LL checkpoint
   with pytest.raises(ckpt.CheckpointError, match="no discriminator"):
     load_discriminator(point_low.run_dir)
 
@@ -376,7 +376,7 @@ def test_align_imitates_a_best_by_default(point_low, tmp_path, monkeypatch):
   for kw, want in [({}, "best"), ({"imitate_params": "final"}, "final")]:
     got = {}
     monkeypatch.setattr(al, "_policy_inputs", lambda *a_, **k: got.update(tau=real_inputs(*a_, **k)) or got["tau"])
-    monkeypatch.setattr(al, "run_stage", lambda stage, options: got.update(meta=stage.meta))
+    monkeypatch.setattr(al, "run_stage", lambda stage, options: got.update(meta=stage.card.to_json()))
     align_low("point", AlignSpec(a, D.DiscConfig(buffer_size=500, data="fixed"), n_offline=64, **kw), cfg,
               options=RunOptions(seeds=1, quiet=True))
     np.testing.assert_array_equal(got["tau"], collect_offline(a, 64, key, num_envs=64, which=want))

@@ -1,5 +1,5 @@
 """The hand-off card: JSON round trip (meta.json, including committed zoo entries), refusal of another
-card format, and the one-line messages of compatible_with. No training: cards come from envs, files
+card format, and the one-line messages of its hand-off checks. No training: cards come from envs, files
 and edited copies."""
 
 import json
@@ -93,47 +93,45 @@ def _src(card, source):
   return card.replace(source=source)
 
 
-def test_compatible_with_words_every_hand_off():
+def test_each_hand_off_check_words_its_errors():
   pm, arm = _src(low_card(), "PM_LOW"), _src(low_card("arm3"), "ARM_LOW")
   hl = _src(high_card(), "PM_HIGH")
   # compose: levels, goal spaces, goal boxes
-  assert hl.compatible_with(pm, "compose") == hl.delta_max
+  assert hl.compose_box(pm) == hl.delta_max
   with pytest.raises(ckpt.CheckpointError, match="PM_LOW holds a 'low'-level policy; compose needs an HL"):
-    pm.compatible_with(pm, "compose")
+    pm.compose_box(pm)
   with pytest.raises(ckpt.CheckpointError, match="PM_HIGH holds a 'high'-level policy; compose needs an LL"):
-    hl.compatible_with(hl, "compose")
+    hl.compose_box(hl)
   with pytest.raises(ValueError, match="goal spaces do not match: the HL in PM_HIGH emits navigation"):
-    hl.compatible_with(arm, "compose")
+    hl.compose_box(arm)
   small_box = pm.replace(delta_max=2.0)
   with pytest.raises(ValueError, match=r"goal boxes differ: .* pass box='scale'"):
-    hl.compatible_with(small_box, "compose")
-  assert hl.compatible_with(small_box, "compose", box="scale") == 2.0
-  assert hl.compatible_with(small_box, "compose", box="keep") == hl.delta_max
+    hl.compose_box(small_box)
+  assert hl.compose_box(small_box, box="scale") == 2.0
+  assert hl.compose_box(small_box, box="keep") == hl.delta_max
   # an LL for an HL
-  assert pm.compatible_with(None, "low") == pm.delta_max
+  assert pm.low_box() == pm.delta_max
   with pytest.raises(ckpt.CheckpointError, match="PM_HIGH holds a 'high'-level policy where a low level was expected"):
-    hl.compatible_with(None, "low")
+    hl.low_box()
   with pytest.raises(ckpt.CheckpointError, match="trained with k=0, delta_max=4.0; an HL needs both positive"):
-    pm.replace(k=0).compatible_with(None, "low")
+    pm.replace(k=0).low_box()
   # finetuning A's HL into B's run
-  assert hl.compatible_with(hl, "finetune") == hl.delta_max
+  hl.check_finetunes_to(hl)
   with pytest.raises(ckpt.CheckpointError, match="finetune_high needs an HL"):
-    pm.compatible_with(None, "finetune")
+    pm.check_finetunes_to(hl)
   with pytest.raises(ValueError, match="goal spaces do not match: the HL in PM_HIGH was trained for the 'nav'"):
-    hl.compatible_with(hl.replace(family="manip"), "finetune")
+    hl.check_finetunes_to(hl.replace(family="manip"))
   with pytest.raises(ckpt.CheckpointError, match=f"maps {hl.obs_size} observations to 2 actions"):
-    hl.compatible_with(hl.replace(obs_size=hl.obs_size + 3), "finetune")
+    hl.check_finetunes_to(hl.replace(obs_size=hl.obs_size + 3))
   with pytest.raises(ValueError, match=r"has hidden sizes \(16, 16\)"):
-    hl.compatible_with(hl.replace(hidden_sizes=(8, 8)), "finetune")
+    hl.check_finetunes_to(hl.replace(hidden_sizes=(8, 8)))
   normed = hl.replace(extra=dict(hl.extra, sac=dict(hl.sac, normalize_observations=True)))
   with pytest.raises(ValueError, match="was trained without an observation normaliser"):
-    hl.compatible_with(normed, "finetune")
+    hl.check_finetunes_to(normed)
   # aligning B's LL to A's
-  assert pm.compatible_with(pm, "align") == pm.delta_max
+  pm.check_imitated_by(pm)
   with pytest.raises(ValueError, match="cannot align 'arm3' to the LL in PM_LOW .*goal spaces differ"):
-    pm.compatible_with(arm, "align")
-  with pytest.raises(ValueError, match="use='swap'"):
-    pm.compatible_with(pm, "swap")
+    pm.check_imitated_by(arm)
 
 
 def test_card_checks_the_env_it_is_run_on():

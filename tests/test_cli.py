@@ -173,12 +173,13 @@ def fakes(tmp_path_factory):
   """Run directories written without training (the checks read their metadata), and things that are
   not runs."""
   from hdt.envs import make
-  from hdt.transfer import configs, pipeline
+  from hdt.transfer import configs
+  from hdt.transfer.card import PolicyCard
   root = tmp_path_factory.mktemp("fakes")
   cfg = configs.low_config("point", total_env_steps=400, num_envs=4, steps_per_chunk=25, batch_size=16,
                            buffer_size=1000, hidden_sizes=(16, 16), num_eval_episodes=2)
   w = {"w": np.zeros((2,), np.float32)}
-  low_meta = pipeline.env_meta(make("point", "reach"), "low", cfg, env_overrides={})
+  low_meta = PolicyCard.from_env(make("point", "reach"), "low", cfg, env_overrides={}).to_json()
 
   from hdt.agents import networks as nets
   policy = nets.make_sac_networks(low_meta["obs_size"], low_meta["action_size"],
@@ -492,9 +493,9 @@ def test_sweep_sac_options_apply_to_every_grid_point(monkeypatch, tmp_path):
   from hdt.transfer import sweep as sweep_mod
   seen = []
 
-  def fake_sweep(level, runs, seeds, **kw):  # what would be trained, without training it
+  def fake_sweep(level, runs, options, **kw):  # what would be trained, without training it
     seen.extend(runs)
-    return [SimpleNamespace(history={"eval/success_max": np.zeros((seeds, 1))}) for _ in runs]
+    return [SimpleNamespace(history={"eval/success_max": np.zeros((options.seeds, 1))}) for _ in runs]
 
   monkeypatch.setattr(sweep_mod, "sweep", fake_sweep)
   assert main(["sweep", "low", "--agent", "arm3", "--preset", "smoke", "--quiet", "--grid", "target_entropy=-3,-9",

@@ -135,10 +135,10 @@ def test_align_discriminator_defaults_come_from_a_in_cli_api_and_experiments():
   assert (d.lr, d.weight, d.data) == (1e-3, 0.4, "offline")  # options override A's values, field by field
   stage = align_stage("arm3", "zoo:arm_point/low", configs.low_config("arm3", total_env_steps=64, num_envs=4,
                                                                      steps_per_chunk=16))
-  assert stage.meta["discriminator"] == dataclasses.asdict(configs.disc_config("arm_point"))
+  assert stage.card.extra["discriminator"] == dataclasses.asdict(configs.disc_config("arm_point"))
   # fields added since older alignments were saved, with the values those ran under (resume back-fill)
   from hdt.agents.discriminator import ADDED_FIELDS
-  assert stage.legacy_meta == {"discriminator": ADDED_FIELDS} and set(ADDED_FIELDS) <= set(stage.meta["discriminator"])
+  assert stage.legacy_meta == {"discriminator": ADDED_FIELDS} and set(ADDED_FIELDS) <= set(stage.card.extra["discriminator"])
 
 
 def test_cli_presets_are_the_configs_table():

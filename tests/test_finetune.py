@@ -152,7 +152,7 @@ def _capture(captured):
   def run(stage, options):
     trainer = sac_train.make_train(stage.env, stage.config, plugins=stage.plugins)
     keys = sac_train.seed_keys(sac_train.seed_list(options.seeds))
-    captured.update(trainer=trainer, initial_state=sac_train.vmapped(trainer).init(keys), meta=stage.meta)
+    captured.update(trainer=trainer, initial_state=sac_train.vmapped(trainer).init(keys), meta=stage.card.to_json())
   return run
 
 

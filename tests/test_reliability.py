@@ -388,7 +388,7 @@ from hdt.envs import make  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
 from hdt.transfer.align import align_low  # noqa: E402
 from hdt.transfer.evaluate import compose, evaluate  # noqa: E402
-from hdt.transfer.card import LowRef  # noqa: E402
+from hdt.transfer.card import LowRef, PolicyCard  # noqa: E402
 from hdt.transfer.finetune import FinetuneSpec, finetune_high  # noqa: E402
 from hdt.transfer.hierarchy import HighLevelEnv  # noqa: E402
 from hdt.transfer import names, zoo  # noqa: E402
@@ -405,7 +405,7 @@ def runs(tmp_path_factory):
   w = {"w": np.zeros((2,), np.float32)}
 
   def low(agent, **extra):
-    return pipeline.env_meta(make(agent, "reach"), "low", PCFG, env_overrides={}) | extra
+    return PolicyCard.from_env(make(agent, "reach"), "low", PCFG, env_overrides={}).to_json() | extra
 
   metas = dict(point_low=low("point"), arm_low=low("arm3"), point_low_box2=low("point", delta_max=2.0),
                point_high=low("point", level="high", task="waypoint"))

@@ -121,7 +121,7 @@ def test_sweep_trains_same_shape_points_together_and_writes_each_run(tmp_path):
   cfgs = [dataclasses.replace(base, actor_lr=lr, critic_lr=lr) for lr in (1e-4, 3e-4)]
   cfgs.append(dataclasses.replace(base, batch_size=32))
   runs = [(c, tmp_path / "sweep" / f"p{i}") for i, c in enumerate(cfgs)]
-  results = sweep("low", runs, seeds=2, agent="point", quiet=True)
+  results = sweep("low", runs, options=RunOptions(seeds=2, quiet=True), agent="point")
   alone = train_low("point", cfgs[1], options=RunOptions(seeds=2, out=tmp_path / "alone", quiet=True))
   hashed = {"tb", "d", "ocdbt.process_0"}  # event files and array shards named by time or content hash
   listing = lambda d: sorted(str(p.relative_to(d)) for p in d.rglob("*") if not hashed & set(p.relative_to(d).parts))

@@ -21,7 +21,7 @@ def test_zoo_names_resolve_and_an_hl_uses_the_ll_seed_it_was_trained_over():
   k = p.low_params["params"]["mlp"]["hidden_0"]["kernel"]
   assert k.shape[0] == 2 and np.array_equal(k[0], k[1])  # both HL seeds over LL seed 0
   # over another LL run (a transfer) HL seed i drives LL seed i
-  assert ev.trained_over(p.meta, "zoo:arm_point/low") == 0 and ev.trained_over(p.meta, "zoo:arm3/low") is None
+  assert ev.trained_over(p.card, "zoo:arm_point/low") == 0 and ev.trained_over(p.card, "zoo:arm3/low") is None
 
 
 def test_unknown_zoo_name_is_one_clear_error():
@@ -83,7 +83,7 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   full = ev.evaluate(ev.load_policy(run, "best"), episodes=4, key=3)
   for which in ("final", "best"):
     pol = ev.load_policy("zoo:t/low", which)
-    assert pol.meta["params"] == "best"
+    assert pol.card.loaded == "best"
     assert full["per_seed"]["return"].tolist() == ev.evaluate(pol, episodes=4, key=3)["per_seed"]["return"].tolist()
   ev.compose("zoo:t/high", "zoo:t/low")
   # an entry exported before the LL's final parameters were dropped is slimmed in place, remembers the

@@ -16,7 +16,7 @@ from hdt.agents.sac import SACConfig
 from hdt.envs import make
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.card import PolicyCard, load_low
+from hdt.transfer.card import AlignedTo, PolicyCard, load_low
 from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
 
 # The authors imitate A's best model (hierarchical.py DiscriminatorEnv: load(policy, ..., best=True);
@@ -73,13 +73,11 @@ def align_stage(agent: str, imitate: AlignSpec | str | Path, config: SACConfig |
   A's data, and a card that records A."""
   configs.check_config(config, allow_none=True)
   spec = AlignSpec.of(imitate)
-  params_a, meta_a, fn_a = load_low(spec.imitate, spec.imitate_seed, spec.imitate_params)
-  disc = configs.disc_config(meta_a["agent"]) if spec.disc is None else spec.disc
+  params_a, card_a, fn_a = load_low(spec.imitate, spec.imitate_seed, spec.imitate_params)
+  disc = configs.disc_config(card_a.agent) if spec.disc is None else spec.disc
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = configs.low_config(agent) if config is None else config
-  card = PolicyCard.from_env(env, "low", config, env_overrides=env_overrides)
-  card_a = PolicyCard.from_json(meta_a, spec.imitate)
-  card_a.compatible_with(card, "align")
+  card_a.check_imitated_by(PolicyCard.from_env(env, "low", config, env_overrides=env_overrides))
   tau_scale = float(card_a.delta_max or 1.0) if disc.scale_inputs else 1.0
   if disc.data != "fixed":
     limit = {"ll_horizon": disc.expert_time_limit} if disc.expert_time_limit else {}
@@ -92,38 +90,39 @@ def align_stage(agent: str, imitate: AlignSpec | str | Path, config: SACConfig |
                            jax.random.PRNGKey(spec.offline_seed), OFFLINE_ENVS, disc.include_z)
     al = disc_lib.make_alignment(disc, tau_a, config.total_env_steps, config.num_envs,
                                  tau_scale=tau_scale)
-  meta = dict(card.to_json(), aligned_to=dict(path=str(spec.imitate), agent=meta_a["agent"],
-                                              seed_index=spec.imitate_seed, params=meta_a["params"],
-                                              params_env_steps=meta_a["params_env_steps"],
-                                              n_offline=int(spec.n_offline) if disc.data == "fixed" else 0,
-                                              offline_seed=spec.offline_seed, tau_scale=tau_scale,
-                                              sha256=ckpt.content_hash(spec.imitate, spec.imitate_seed)),
-              discriminator=dataclasses.asdict(disc))
-  return Stage(env, config, meta, f"align {agent}<-{meta_a['agent']}", plugins=(al.plugin,),
+  aligned_to = AlignedTo(spec.imitate, agent=card_a.agent, seed_index=spec.imitate_seed, params=card_a.loaded,
+                         params_env_steps=card_a.loaded_env_steps,
+                         n_offline=int(spec.n_offline) if disc.data == "fixed" else 0,
+                         offline_seed=spec.offline_seed, tau_scale=tau_scale,
+                         sha256=ckpt.content_hash(spec.imitate, spec.imitate_seed))
+  card = PolicyCard.from_env(env, "low", config, env_overrides=env_overrides, aligned_to=aligned_to,
+                             discriminator=dataclasses.asdict(disc))
+  return Stage(env, config, card, f"align {agent}<-{card_a.agent}", plugins=(al.plugin,),
                # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
-               save_extra=lambda ts: {"discriminator": ts.aux["params"]}, point_meta=_point_meta,
+               save_extra=lambda ts: {"discriminator": ts.aux["params"]}, point_card=_point_card,
                legacy_meta={"discriminator": disc_lib.ADDED_FIELDS})
 
 
-def _point_meta(meta: dict, hyper: dict) -> dict:
-  """The meta of a grid point over the discriminator's ``disc_weight`` (its initial weight w0)."""
+def _point_card(card: PolicyCard, hyper: dict) -> PolicyCard:
+  """The card of a grid point over the discriminator's ``disc_weight`` (its initial weight w0)."""
   if disc_lib.WEIGHT not in hyper:
-    return meta
-  return dict(meta, discriminator=dict(meta["discriminator"], weight=hyper[disc_lib.WEIGHT]))
+    return card
+  disc = dict(card.extra["discriminator"], weight=hyper[disc_lib.WEIGHT])
+  return card.replace(extra=dict(card.extra, discriminator=disc))
 
 
-def load_discriminator(aligned_run, seed_index: int = 0, imitate_taus=None):
-  """(logit_fn(x) -> logit of "x came from B", meta) of an aligned LL's saved discriminator; ``x``
+def load_discriminator(aligned_run, seed_index: int = 0):
+  """(logit_fn(x) -> logit of "x came from B", card) of an aligned LL's saved discriminator; ``x``
   (:func:`hdt.agents.discriminator.disc_input`) in raw goal-space units (the saved net saw
   x / tau_scale)."""
   params, meta = ckpt.load(aligned_run, seed_index)
-  if "discriminator" not in params or "discriminator" not in meta:
+  card = PolicyCard.from_json(meta, aligned_run)
+  if "discriminator" not in params or "discriminator" not in card.extra or card.aligned_to is None:
     raise ckpt.CheckpointError(f"{aligned_run} holds no discriminator: it is not an aligned LL "
                                f"(train one with train_low(agent, imitate=A_run))")
-  cfg = meta["discriminator"]
-  net = disc_lib.Discriminator(tuple(cfg["hidden_sizes"]))
-  scale = float(meta["aligned_to"].get("tau_scale") or 1.0)
-  return (lambda tau: net.apply(params["discriminator"], np.asarray(tau, np.float32) / scale)), meta
+  net = disc_lib.Discriminator(tuple(card.extra["discriminator"]["hidden_sizes"]))
+  scale = float(card.aligned_to.tau_scale or 1.0)
+  return (lambda tau: net.apply(params["discriminator"], np.asarray(tau, np.float32) / scale)), card
 
 
 def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: int = OFFLINE_ENVS,
@@ -132,8 +131,8 @@ def collect_offline(low_run_dir, n: int, key, backend: str = "auto", num_envs: i
   (deterministic actions) on its reach task (uniform goals in its goal box, the LL training episode
   structure), ``num_envs`` envs in parallel; z is the relative goal of A's own episode. ``which``:
   A's "best" or "final" parameters."""
-  params, meta, fn = load_low(low_run_dir, seed_index, which)
-  env = PolicyCard.from_json(meta, low_run_dir).make_env("reach", backend)
+  params, card, fn = load_low(low_run_dir, seed_index, which)
+  env = card.make_env("reach", backend)
   return _policy_inputs(env, fn, params["policy"], n, key, num_envs, include_z)
 
 

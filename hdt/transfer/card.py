@@ -2,15 +2,19 @@
 
 A :class:`PolicyCard` is frozen and typed: level, agent, task, family and goal space, the goal
 dimension, k and delta_max, the observation sizes and the HL observation layout, the network and
-normaliser spec, and the env / task options it was trained with. ``meta.json`` (top level and per
-seed) is its JSON serialisation (:meth:`PolicyCard.to_json`); what the card does not type (the SAC
-config, provenance such as ``low`` / ``aligned_to`` / ``finetuned_from``, the seed and checkpoint
-fields) is kept verbatim in ``extra`` so that a round trip writes the same file.
+normaliser spec, the env / task options it was trained with, and its provenance: the runs it was
+trained from, each a typed record (:class:`LowRef` an HL's LL, :class:`AlignedTo` an aligned LL's A,
+:class:`FinetunedFrom` a finetuned HL's A). ``meta.json`` (top level and per seed) is its JSON
+serialisation (:meth:`PolicyCard.to_json`); what the card does not type (the SAC config, the seed and
+checkpoint fields, a stage's own settings) is kept verbatim in ``extra`` so that a round trip writes the
+same file.
 
-Every hand-off between levels is checked by :meth:`PolicyCard.compatible_with`, the one place that
-words those errors. The card builds its env (:meth:`PolicyCard.make_env`, :meth:`PolicyCard.high_env`)
-and its deterministic policy function (:meth:`PolicyCard.policy_fn`), which applies the observation
-statistics saved beside the policy's parameters (``params["obs_norm"]``, if it was trained with them).
+Each hand-off between levels has its check, which words its errors: :meth:`PolicyCard.low_box` (an LL
+for an HL), :meth:`PolicyCard.compose_box` (an HL over an LL), :meth:`PolicyCard.check_finetunes_to` (A's
+HL as the start of B's) and :meth:`PolicyCard.check_imitated_by` (B's LL aligned to A's). The card builds
+its env (:meth:`PolicyCard.make_env`, :meth:`PolicyCard.high_env`) and its deterministic policy function
+(:meth:`PolicyCard.policy_fn`), which applies the observation statistics saved beside the policy's
+parameters (``params["obs_norm"]``, if it was trained with them).
 """
 
 from __future__ import annotations
@@ -44,8 +48,7 @@ REQUIRED = {"level": str, "agent": str, "task": str, "family": str, "obs_size": 
 # The keys the card types; everything else of meta.json goes to ``extra`` untouched.
 _TYPED = ("level", "agent", "task", "family", "goal_space", "k", "delta_max", "obs_size", "action_size",
           "obs_lo_size", "obs_hi_size", "hidden_sizes", "hl_obs", "hl_horizon", "env_overrides",
-          "task_overrides")
-USES = ("low", "compose", "finetune", "align")
+          "task_overrides", "low", "aligned_to", "finetuned_from")
 # Which parameters of an LL an HL runs over: the authors compose with the LL's best model
 # (HighLevelEnv: load_from_name(policy, best=True)).
 LOW_PARAMS = "best"
@@ -70,22 +73,41 @@ class ObsLayout:
     return cls(tuple(int(i) for i in d.get("hl_relative", ())), bool(d.get("hl_absolute", True)))
 
 
+class Record:
+  """A provenance record of a card (a frozen dataclass whose first field is the ``path`` of the run it
+  names): its JSON leaves out what it does not know (None), so that a record written before a field
+  existed reads and writes back the same."""
+
+  def __post_init__(self):
+    if isinstance(self.path, os.PathLike):
+      object.__setattr__(self, "path", os.fspath(self.path))
+
+  def to_json(self) -> dict:
+    return {f.name: list(v) if isinstance(v, tuple) else v
+            for f in dataclasses.fields(self) if (v := getattr(self, f.name)) is not None}
+
+  @classmethod
+  def from_json(cls, d: Mapping) -> "Record":
+    known = {f.name for f in dataclasses.fields(cls)}
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in known})
+
+
 @dataclasses.dataclass(frozen=True)
-class LowRef:
+class LowRef(Record):
   """The frozen LL an HL runs over: its run directory (or ``zoo:NAME``), the seed that drives every HL
   seed, and which of its parameters ("best", as the authors compose, or "final"). An HL's card records
   it as ``low`` with what was loaded: the parameters' env steps and the seed's content hash."""
 
   path: str
   seed_index: int = 0
-  params: str = LOW_PARAMS
+  params: str | None = LOW_PARAMS  # None: a record written before it was kept
   params_env_steps: int | None = None
   sha256: str | None = None
 
   def __post_init__(self):
-    if isinstance(self.path, os.PathLike):
-      object.__setattr__(self, "path", os.fspath(self.path))
-    ckpt.check_which(self.params, "params")
+    super().__post_init__()
+    if self.params is not None:
+      ckpt.check_which(self.params, "params")
 
   @classmethod
   def of(cls, low) -> "LowRef":
@@ -95,6 +117,47 @@ class LowRef:
     if not isinstance(low, (str, os.PathLike)):
       raise ValueError(f"low={low!r}: give the LL's run directory (or zoo:NAME), or a LowRef")
     return cls(os.fspath(low))
+
+  @classmethod
+  def from_json(cls, d: Mapping) -> "LowRef":
+    return super().from_json({"params": None} | dict(d))
+
+
+@dataclasses.dataclass(frozen=True)
+class AlignedTo(Record):
+  """The LL an aligned LL imitated (``hdt.transfer.align``): A's run, agent, seed and parameters, the
+  fixed data set's size and key (``n_offline`` 0 when A ran alongside), the input scale and A's hash."""
+
+  path: str
+  agent: str | None = None
+  seed_index: int = 0
+  params: str | None = None
+  params_env_steps: int | None = None
+  n_offline: int | None = None
+  offline_seed: int | None = None
+  tau_scale: float | None = None
+  sha256: str | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class FinetunedFrom(Record):
+  """The HL a finetuned HL started from (``hdt.transfer.finetune``): A's run, agent, task and
+  parameters, its hash and seeds, which of A's seeds started each seed, and the KL reference (seed,
+  parameters and their env steps; None without a KL term)."""
+
+  path: str
+  agent: str | None = None
+  task: str | None = None
+  params: str | None = None
+  sha256: str | None = None
+  seeds: int | None = None
+  init_seed_indices: tuple[int, ...] | None = None
+  reference_seed: int | None = None
+  reference_params: str | None = None
+  reference_params_env_steps: int | None = None
+
+
+PROVENANCE = {"low": LowRef, "aligned_to": AlignedTo, "finetuned_from": FinetunedFrom}  # card field -> record
 
 
 def low_policy_fn(hidden_sizes, obs_size: int, action_size: int, obs_norm=None) -> Callable:
@@ -129,6 +192,9 @@ class PolicyCard:
   hl_horizon: int | None = None
   env_overrides: Mapping | None = None
   task_overrides: Mapping | None = None
+  low: LowRef | None = None  # an HL's LL
+  aligned_to: AlignedTo | None = None  # an aligned LL's A
+  finetuned_from: FinetunedFrom | None = None  # a finetuned HL's A
   extra: Mapping = dataclasses.field(default_factory=dict)  # verbatim rest of meta.json
   source: str | None = dataclasses.field(default=None, compare=False)  # where it was read, for messages
 
@@ -153,6 +219,17 @@ class PolicyCard:
     return bool(self.sac.get("normalize_observations", False))
 
   @property
+  def loaded(self) -> str:
+    """Which parameters were loaded with this card (:func:`hdt.transfer.checkpoint.load`): "final",
+    "best", or a per-seed mix."""
+    return self.extra.get("params", "final")
+
+  @property
+  def loaded_env_steps(self) -> int | None:
+    """After how many env steps the loaded parameters were saved."""
+    return self.extra.get("params_env_steps")
+
+  @property
   def obs_layout(self) -> ObsLayout:
     return self.hl_obs or ObsLayout()
 
@@ -170,7 +247,7 @@ class PolicyCard:
       v = getattr(self, name)
       if v is None:  # absent from the file it came from
         continue
-      if name == "hl_obs":
+      if isinstance(v, (ObsLayout, Record)):
         v = v.to_json()
       elif name == "hidden_sizes":
         v = list(v)
@@ -201,12 +278,14 @@ class PolicyCard:
                hl_obs=None if get("hl_obs") is None else ObsLayout.from_json(get("hl_obs")),
                hl_horizon=get("hl_horizon"), env_overrides=get("env_overrides"),
                task_overrides=get("task_overrides"), extra=extra,
+               **{k: record.from_json(meta[k]) for k, record in PROVENANCE.items() if meta.get(k) is not None},
                source=None if source is None else str(source))
 
   @classmethod
   def from_env(cls, env, level: str, config, **extra) -> "PolicyCard":
     """The card of a policy about to be trained on ``env`` (an agent-task env or an HL env) with the
-    SAC ``config``; ``extra``: provenance and options (env_overrides, low, hl_obs, ...)."""
+    SAC ``config``; ``extra``: provenance records (low=LowRef(...), ...), options (env_overrides, ...)
+    and a stage's settings (kept in ``extra``)."""
     inner = env.env if isinstance(env, HighLevelEnv) else env
     agent, task = inner.agent, inner.task
     meta = dict(level=level, agent=agent.name, task=task.name, family=agent.family,
@@ -218,7 +297,8 @@ class PolicyCard:
       meta |= dict(k=env.k, hl_horizon=env.horizon, delta_max=env.delta_max,
                    hl_obs=ObsLayout(tuple(task.hl_relative), task.hl_absolute).to_json())
     # a robot file: its path is the agent, and its sha256
-    return cls.from_json(meta | robot_record(agent) | extra)
+    records = {k: v.to_json() for k, v in extra.items() if isinstance(v, Record)}
+    return cls.from_json(meta | robot_record(agent) | extra | records)
 
   def replace(self, **kw) -> "PolicyCard":
     return dataclasses.replace(self, **kw)
@@ -262,71 +342,69 @@ class PolicyCard:
                         hl_horizon=hl_horizon, record=record,
                         delta_max=self.delta_max if delta_max is None else delta_max)
 
-  # --- hand-off checks --------------------------------------------------------------------------
-  def compatible_with(self, other: "PolicyCard | None", use: str, box: str = "refuse") -> float:
-    """Whether this card can be handed to ``other`` for ``use`` (one of :data:`USES`); raises the
-    one-line error of the first mismatch, else returns the sub-goal box to use (delta_max).
+  # --- hand-off checks: each raises the one-line error of the first mismatch -------------------
+  def low_box(self) -> float:
+    """This card as the LL an HL runs over: a low level with positive k and sub-goal box; returns the box."""
+    check_level(self.level, self.source, "low")
+    if self.k <= 0 or not np.isfinite(self.delta_max) or self.delta_max <= 0:
+      raise ckpt.CheckpointError(f"the LL in {self.source} was trained with k={self.k}, delta_max={self.delta_max}; "
+                                 f"an HL needs both positive: retrain the LL without such --set values")
+    return float(self.delta_max)
 
-    "low": this card must be a usable LL (``other`` unused). "compose": this HL over the LL ``other``
-    (``box``: "refuse", "scale" or "keep" goal boxes that differ). "finetune": this HL (A's) as the
-    start of the run described by ``other`` (B's HL card, built from its env and config); ``other``
-    None checks only that this is an HL. "align": the LL ``other`` (B) aligned to this LL (A).
-    """
-    me = self.source
-    if use in ("low", "compose", "finetune"):
-      check_level(self.level, me, use)
-    if use == "low":
-      if self.k <= 0 or not np.isfinite(self.delta_max) or self.delta_max <= 0:
-        raise ckpt.CheckpointError(f"the LL in {me} was trained with k={self.k}, delta_max={self.delta_max}; "
-                                   f"an HL needs both positive: retrain the LL without such --set values")
-      return float(self.delta_max)
-    if use == "compose":
-      if other.level != "low":
-        raise ckpt.CheckpointError(f"{other.source} holds a {other.level!r}-level policy; compose needs an LL "
-                                   f"(from `hdt train low`) as low=")
-      if self.family != other.family:
-        raise ValueError(
-            f"goal spaces do not match: the HL in {me} emits {GOAL_SPACE_NAMES[self.family]} sub-goals, the "
-            f"LL in {other.source} ({other.agent}) reaches {GOAL_SPACE_NAMES[other.family]} goals; pair an HL "
-            f"and an LL of the same family")
-      if not np.isclose(self.delta_max, other.delta_max):
-        if box == "scale":
-          return float(other.delta_max)
-        if box != "keep":
-          raise ValueError(f"goal boxes differ: HL sub-goals span +-{self.delta_max} but the LL was trained "
-                           f"on +-{other.delta_max}; pass box='scale' to map the HL's box onto the LL's, or "
-                           f"box='keep' to keep the HL's box in metres")
+  def compose_box(self, low: "PolicyCard", box: str = "refuse") -> float:
+    """This HL over the LL ``low``: same goal space; goal boxes that differ are refused, or with
+    ``box`` "scale" the HL's [-1, 1] actions span the LL's box, "keep" the HL's box in metres. Returns
+    the sub-goal box to use."""
+    check_level(self.level, self.source, "high", "compose")
+    if low.level != "low":
+      raise ckpt.CheckpointError(f"{low.source} holds a {low.level!r}-level policy; compose needs an LL "
+                                 f"(from `hdt train low`) as low=")
+    if self.family != low.family:
+      raise ValueError(
+          f"goal spaces do not match: the HL in {self.source} emits {GOAL_SPACE_NAMES[self.family]} sub-goals, "
+          f"the LL in {low.source} ({low.agent}) reaches {GOAL_SPACE_NAMES[low.family]} goals; pair an HL and "
+          f"an LL of the same family")
+    if np.isclose(self.delta_max, low.delta_max) or box == "keep":
       return self.delta_max
-    if use == "finetune":
-      if other is None:
-        return self.delta_max
-      if self.family != other.family:
-        raise ValueError(f"goal spaces do not match: the HL in {me} was trained for the {self.family!r} "
-                         f"family, the LL in {other.source} belongs to {other.family!r}; finetune an HL of "
-                         f"the same family")
-      if self.obs_size != other.obs_size or self.action_size != other.action_size:
-        raise ckpt.CheckpointError(
-            f"the HL in {me} maps {self.obs_size} observations to {self.action_size} actions but the HL "
-            f"env of {other.task} over {other.source} has {other.obs_size} observations and {other.action_size} "
-            f"actions (was A's HL trained on another task or with other task options?)")
-      if other.normalize_observations != self.normalizer:
-        raise ValueError(f"config.normalize_observations={other.normalize_observations} but the HL in {me} "
-                         f"was trained {'with' if self.normalizer else 'without'} an observation normaliser; "
-                         f"the finetuned policy must have A's layout")
-      if other.hidden_sizes != self.hidden_sizes:
-        raise ValueError(f"config.hidden_sizes={other.hidden_sizes} but the HL in {me} has hidden sizes "
-                         f"{self.hidden_sizes}; the finetuned policy must have A's architecture")
-      return other.delta_max
-    if use == "align":
-      if self.family != other.family or self.goal_space != other.goal_space:
-        raise ValueError(
-            f"cannot align {other.agent!r} to the LL in {me} ({self.agent!r}): goal spaces "
-            f"differ ({other.goal_space} vs {self.goal_space}); A and B must both be nav or "
-            f"both manip agents")
-      if other.obs_size < self.goal_dim or self.obs_size < self.goal_dim:
-        raise ckpt.CheckpointError(f"LL observations must end with the {self.goal_dim} goal-space entries g - s")
-      return other.delta_max
-    raise ValueError(f"use={use!r}: one of {', '.join(USES)}")
+    if box == "scale":
+      return float(low.delta_max)
+    raise ValueError(f"goal boxes differ: HL sub-goals span +-{self.delta_max} but the LL was trained on "
+                     f"+-{low.delta_max}; pass box='scale' to map the HL's box onto the LL's, or box='keep' to "
+                     f"keep the HL's box in metres")
+
+  def check_finetunes_to(self, b: "PolicyCard") -> None:
+    """This HL (A's) as the start of the finetuning run whose card is ``b`` (B's HL, built from its
+    env and config): same family, observation and action sizes, normaliser and architecture."""
+    me = self.source
+    check_level(self.level, me, "high", "finetune_high")
+    if self.family != b.family:
+      raise ValueError(f"goal spaces do not match: the HL in {me} was trained for the {self.family!r} family, "
+                       f"the LL in {b.source} belongs to {b.family!r}; finetune an HL of the same family")
+    if self.obs_size != b.obs_size or self.action_size != b.action_size:
+      raise ckpt.CheckpointError(
+          f"the HL in {me} maps {self.obs_size} observations to {self.action_size} actions but the HL env of "
+          f"{b.task} over {b.source} has {b.obs_size} observations and {b.action_size} actions (was A's HL "
+          f"trained on another task or with other task options?)")
+    if b.normalize_observations != self.normalize_observations:
+      raise ValueError(f"config.normalize_observations={b.normalize_observations} but the HL in {me} was "
+                       f"trained {'with' if self.normalize_observations else 'without'} an observation "
+                       f"normaliser; the finetuned policy must have A's layout")
+    if b.hidden_sizes != self.hidden_sizes:
+      raise ValueError(f"config.hidden_sizes={b.hidden_sizes} but the HL in {me} has hidden sizes "
+                       f"{self.hidden_sizes}; the finetuned policy must have A's architecture")
+
+  def check_imitated_by(self, b: "PolicyCard") -> None:
+    """This LL (A's) as what the LL ``b`` (B's) is aligned to: the same goal space."""
+    if self.family != b.family or self.goal_space != b.goal_space:
+      raise ValueError(f"cannot align {b.agent!r} to the LL in {self.source} ({self.agent!r}): goal spaces "
+                       f"differ ({b.goal_space} vs {self.goal_space}); A and B must both be nav or both manip "
+                       f"agents")
+    if b.obs_size < self.goal_dim or self.obs_size < self.goal_dim:
+      raise ckpt.CheckpointError(f"LL observations must end with the {self.goal_dim} goal-space entries g - s")
+
+  def inputs(self) -> dict[str, str]:
+    """{record: run directory} of the runs this card's policy was trained from (its provenance)."""
+    return {k: getattr(self, k).path for k in PROVENANCE if getattr(self, k) is not None}
 
   def check_params(self, params) -> None:
     """Refuses (one line) saved parameters whose policy network is not this card's: its layer widths,
@@ -346,11 +424,6 @@ class PolicyCard:
           f"{list(self.hidden_sizes)}, obs_size={self.obs_size}, action_size={self.action_size}; the saved "
           f"policy's layers: {sizes}): meta.json was edited or belongs to another run; restore it from a backup "
           f"or re-train")
-
-  @property
-  def normalizer(self) -> bool:
-    """Whether the saved policy has observation statistics beside it (recorded by the SAC config)."""
-    return self.normalize_observations
 
   def check_env(self, env, task: str) -> None:
     """Refuses an env whose observation does not fit this policy (evaluation on another task)."""
@@ -393,28 +466,31 @@ def check_fields(meta: Mapping, where) -> None:
   if not (all(is_int(i) for i in hl_obs.get("hl_relative", [])) and isinstance(hl_obs.get("hl_relative", []), list)
           and isinstance(hl_obs.get("hl_absolute", True), bool)):
     bad("hl_obs", '{"hl_relative": [integers], "hl_absolute": true or false}')
+  for key in PROVENANCE:
+    if meta.get(key) is not None and not isinstance(meta[key].get("path"), str):
+      bad(key, 'a record of the run it names, {"path": "...", ...}')
 
 
-def check_level(level, source, use: str) -> None:
-  """The level a hand-off needs (checked first, so that a policy of the wrong level says so rather
-  than what fields it lacks); part of :meth:`PolicyCard.compatible_with`."""
-  if use == "low" and level != "low":
-    raise ckpt.CheckpointError(f"{source} holds a {level!r}-level policy where a low level "
-                               f"was expected (train one with `hdt train low --agent ...`)")
-  if use in ("compose", "finetune") and level != "high":
-    who = "compose" if use == "compose" else "finetune_high"
-    raise ckpt.CheckpointError(f"{source} holds a {level!r}-level policy; {who} needs an HL "
-                               f"(from `hdt train high`) as high=")
+def check_level(level, source, want: str, who: str = "") -> None:
+  """A hand-off's level (checked first, so that a policy of the wrong level says so rather than what
+  fields it lacks): ``want`` "low", or "high" for ``who`` (compose, finetune_high)."""
+  if level == want:
+    return
+  if want == "low":
+    raise ckpt.CheckpointError(f"{source} holds a {level!r}-level policy where a low level was expected "
+                               f"(train one with `hdt train low --agent ...`)")
+  raise ckpt.CheckpointError(f"{source} holds a {level!r}-level policy; {who} needs an HL (from `hdt train "
+                             f"high`) as high=")
 
 
-def load_low(low: str | Path, seed_index: int = 0, which: str = "final"):
-  """(params, meta, policy_fn) of a saved LL (policy_fn applies its saved observation statistics),
-  checked to be a low level; ``which``: its "final"
-  parameters or its "best" evaluation's (see :func:`ckpt.load`, ``meta["params"]`` says which)."""
+def load_low(low: str | Path, seed_index: int = 0, which: str = "final") -> tuple[dict, PolicyCard, Callable]:
+  """(params, card, policy_fn) of a saved LL (policy_fn applies its saved observation statistics),
+  checked to be a usable low level; ``which``: its "final" parameters or its "best" evaluation's (see
+  :func:`ckpt.load`; the card's ``loaded`` says which were)."""
   params, meta = ckpt.load(low, seed_index, which)
   check_level(meta.get("level"), low, "low")
   card = PolicyCard.from_json(meta, Path(low) / f"seed_{seed_index}" / "meta.json").replace(source=str(low))
-  card.compatible_with(None, "low")
+  card.low_box()
   card.check_params(params)
   check_recorded(meta)
-  return params, meta, card.policy_fn(params.get(ckpt.NORM))
+  return params, card, card.policy_fn(params.get(ckpt.NORM))

@@ -20,12 +20,12 @@ from hdt.transfer.memory import check_memory, state_bytes
 
 @dataclasses.dataclass
 class Policy:
-  """A runnable policy: an HL over an LL (``low`` set) or a flat policy (LL on reach, or Full)."""
+  """A runnable policy: an HL over an LL (``low_card`` set) or a flat policy (LL on reach, or Full)."""
 
   params: Any  # policy params, leading seed axis
-  meta: dict
+  card: PolicyCard  # its card; ``card.loaded`` says which parameters
   low_params: Any = None  # LL policy params, leading seed axis (paired with the HL seeds)
-  low_meta: dict | None = None
+  low_card: PolicyCard | None = None
   delta_max: float | None = None
   uniform_actions: bool = False  # a random baseline: uniform actions in [-1, 1] instead of the policy's
   obs_norm: Any = None  # observation statistics saved beside params (leading seed axis), or None
@@ -33,44 +33,37 @@ class Policy:
 
   @property
   def agent(self) -> str:
-    return (self.low_meta or self.meta)["agent"]
-
-  @property
-  def card(self) -> PolicyCard:
-    return PolicyCard.from_json(self.meta)
-
-  @property
-  def low_card(self) -> PolicyCard | None:
-    return None if self.low_meta is None else PolicyCard.from_json(self.low_meta)
+    return (self.low_card or self.card).agent
 
   @property
   def num_seeds(self) -> int:
     return int(jax.tree.leaves(self.params)[0].shape[0])
 
 
-def _load(run, which: str, what: str):
-  """(params, metas) of every seed; metas[0]["params"] labels them all (ckpt.params_label)."""
+def _load(run, which: str, what: str) -> tuple[Any, PolicyCard, int]:
+  """(params of every seed, the card of seed 0 whose ``loaded`` labels them all (ckpt.params_label),
+  the number of seeds)."""
   params, metas = ckpt.load_all(run, ckpt.check_which(which, what))
   for i, m in enumerate(metas):
     PolicyCard.from_json(m, Path(run) / f"seed_{i}" / "meta.json")  # of a format and with fields this hdt reads
-  PolicyCard.from_json(metas[0], run).check_params(params)
-  return params, [dict(metas[0], params=ckpt.params_label(metas))] + metas[1:]
+  card = PolicyCard.from_json(dict(metas[0], params=ckpt.params_label(metas)), run)
+  card.check_params(params)
+  return params, card, len(metas)
 
 
-def trained_over(hm: dict, low: str | Path) -> int | None:
+def trained_over(high: PolicyCard, low: str | Path) -> int | None:
   """The seed of ``low`` the HL was trained over, if ``low`` is the LL run it was trained over."""
-  rec = hm.get("low")
-  if not isinstance(rec, dict) or not isinstance(rec.get("path"), str):
+  if high.low is None:
     return None
   same = lambda p: Path(ckpt.zoo_path(str(p))).resolve()
-  return int(rec.get("seed_index", 0)) if same(rec["path"]) == same(low) else None
+  return high.low.seed_index if same(high.low.path) == same(low) else None
 
 
-def check_low_unchanged(high: str | Path, hm: dict, low: str | Path) -> None:
+def check_low_unchanged(high: str | Path, card: PolicyCard, low: str | Path) -> None:
   """Refuses an HL over the LL run it was trained over if that LL changed since (retrained): against
   the hash the HL's card records, or for a zoo HL without one, its zoo.json."""
-  seed = trained_over(hm, low)
-  want = None if seed is None else hm["low"].get("sha256") or names.recorded_low_hash(high)
+  seed = trained_over(card, low)
+  want = None if seed is None else card.low.sha256 or names.recorded_low_hash(high)
   if not want:
     return  # another LL (a transfer, not a dependency), or nothing recorded (ckpt.load checks the LL's own record)
   if want not in names.hash_aliases(low, seed):
@@ -103,8 +96,8 @@ class _UniformActions:
 
 def load_policy(run: str | Path, which: str = "final") -> Policy:
   """A flat policy run; ``which``: its "final" parameters or its "best" evaluation's."""
-  params, metas = _load(run, which, "which")
-  return Policy(params["policy"], metas[0], obs_norm=params.get(ckpt.NORM))
+  params, card, _ = _load(run, which, "which")
+  return Policy(params["policy"], card, obs_norm=params.get(ckpt.NORM))
 
 
 BOXES = ("refuse", "scale", "keep")  # what compose does when the HL's and the LL's goal boxes differ
@@ -119,20 +112,18 @@ def compose(high: str | Path, low: str | Path, box: str = "refuse", which: str =
   if box not in BOXES:
     raise ValueError(f"box={box!r}: pass 'refuse' (goal boxes must agree), 'scale' (map the HL's box onto the "
                      f"LL's) or 'keep' (the HL's box in metres)")
-  hp, hmetas = _load(high, which, "which")
-  lp, lmetas = _load(low, low_which, "low_which")
-  hm, lm = hmetas[0], lmetas[0]
-  check_low_unchanged(high, hm, low)
-  hc, lc = PolicyCard.from_json(hm, high), PolicyCard.from_json(lm, low)
-  dm = hc.compatible_with(lc, "compose", box=box)
-  # Over its own LL run an HL is evaluated on the LL seed it was trained over (train_high's low_seed);
-  # in a transfer, HL seed i drives LL seed i (cycling when one run has fewer seeds).
-  own = trained_over(hm, low)
-  n = len(hmetas) if own is not None else max(len(hmetas), len(lmetas))
-  ll_idx = np.full(n, own) if own is not None else np.arange(n) % len(lmetas)
+  hp, hc, n_high = _load(high, which, "which")
+  lp, lc, n_low = _load(low, low_which, "low_which")
+  check_low_unchanged(high, hc, low)
+  dm = hc.compose_box(lc, box)
+  # Over its own LL run an HL is evaluated on the LL seed it was trained over (train_high's LowRef
+  # seed); in a transfer, HL seed i drives LL seed i (cycling when one run has fewer seeds).
+  own = trained_over(hc, low)
+  n = n_high if own is not None else max(n_high, n_low)
+  ll_idx = np.full(n, own) if own is not None else np.arange(n) % n_low
   take = lambda tree, idx: jax.tree.map(lambda x: x[idx], tree)
-  hi_idx = np.arange(n) % len(hmetas)
-  return Policy(take(hp["policy"], hi_idx), hm, take(lp["policy"], ll_idx), lm, dm,
+  hi_idx = np.arange(n) % n_high
+  return Policy(take(hp["policy"], hi_idx), hc, take(lp["policy"], ll_idx), lc, dm,
                 obs_norm=take(hp.get(ckpt.NORM), hi_idx), low_obs_norm=take(lp.get(ckpt.NORM), ll_idx))
 
 
@@ -140,7 +131,7 @@ def _env_for(policy: Policy, task: str | None, backend: str, low_params=None, re
              low_obs_norm=None, **task_overrides):
   card = policy.card
   task = task or card.task
-  if policy.low_meta is None:  # flat policy: LL on reach, or a Full policy on its task
+  if policy.low_card is None:  # flat policy: LL on reach, or a Full policy on its task
     env = card.make_env(task, backend, **task_overrides)
   else:
     env = policy.low_card.high_env(low_params, task, backend, record=record, delta_max=policy.delta_max,
@@ -189,10 +180,11 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
       per_seed[extra] = np.asarray(out[extra])
   summary = {f"{k}_mean": float(np.mean(v)) for k, v in per_seed.items()}
   summary |= {f"{k}_std": float(np.std(v)) for k, v in per_seed.items()}
-  which = {"params": "uniform random actions" if policy.uniform_actions else policy.meta.get("params", "final")}  # every number says which parameters made it
-  which["metric"] = get_task(task or policy.meta["task"]).headline  # what a table reports
-  if policy.low_meta is not None:
-    which["low_params"] = policy.low_meta.get("params", "final")
+  # every number says which parameters made it
+  which = {"params": "uniform random actions" if policy.uniform_actions else policy.card.loaded}
+  which["metric"] = get_task(task or policy.card.task).headline  # what a table reports
+  if policy.low_card is not None:
+    which["low_params"] = policy.low_card.loaded
   spread = {"episode_return_std": np.asarray(out["return_std"]).tolist()}  # per seed, across episodes
   return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary, **spread)
 
@@ -219,7 +211,7 @@ def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key
   """One episode of an HL policy, recorded per LL step: goal-space xy (torso / effector / peg),
   block xy, and each sub-goal, for top-down plots; for videos (hdt.render) also every LL step's qpos
   and sub-goal (``qpos``, ``step_goals``) and the scene's MjModel (``model``)."""
-  if policy.low_meta is None:
+  if policy.low_card is None:
     raise ValueError("trajectory() needs a composed HL + LL policy (see compose)")
   at = lambda tree: jax.tree.map(lambda x: x[seed_index], tree)
   params, low = at(policy.params), at(policy.low_params)
@@ -240,5 +232,5 @@ def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key
   keep = active[:end].reshape(-1) > 0
   per_ll = lambda x: x[:end].reshape((-1,) + x.shape[2:])[keep]  # (HL step, LL step, ...) -> LL steps taken
   return dict(xy=per_ll(xy), block=per_ll(block), goals=goals[:end], rewards=reward[:end],
-              task=task or policy.meta["task"], agent=policy.agent, qpos=per_ll(qpos),
+              task=task or policy.card.task, agent=policy.agent, qpos=per_ll(qpos),
               step_goals=np.repeat(goals[:end], active.shape[1], axis=0)[keep], model=env.env.mj_model)

@@ -44,7 +44,7 @@ from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
-from hdt.transfer.card import LowRef, PolicyCard, check_level
+from hdt.transfer.card import FinetunedFrom, LowRef, PolicyCard, check_level
 from hdt.transfer.pipeline import high_env_with_low, sac_extras
 from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
 
@@ -59,7 +59,7 @@ def load_high_sac(high: str | Path, which: str = "final"):
   of a saved HL, checked to be a high level; ``which``: its "final" parameters (as the authors'
   finetune scripts) or its "best" evaluation's."""
   params, metas = ckpt.load_all(high, which)
-  check_level(metas[0].get("level"), high, "finetune")
+  check_level(metas[0].get("level"), high, "high", "finetune_high")
   return params, metas
 
 
@@ -207,7 +207,6 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
   spec = spec.for_task(task)
   kl_weight, reference_seed = spec.kl_weight, spec.reference_seed
   a_params, a_metas = load_high_sac(high, INIT_PARAMS)
-  am = a_metas[0]
   n_a = len(a_metas)
   if not 0 <= reference_seed < n_a:
     raise ValueError(f"reference_seed={reference_seed}: {high} has seeds 0..{n_a - 1}")
@@ -218,7 +217,7 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
   else:
     ref_params = a_params
 
-  card_a = PolicyCard.from_json(am, high)
+  card_a = PolicyCard.from_json(a_metas[0], high)
   env, low = high_env_with_low(task, low, backend, **(card_a.obs_layout.task_options() | task_overrides))
   a_norm = ckpt.NORM in a_params  # A's observation statistics, saved beside its policy
   a_vnet = "v" in a_params["q"]  # A ran SB2's SAC (SACConfig.value_net)
@@ -228,9 +227,9 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
   if spec.init == "sac" and config.value_net != a_vnet:
     raise ckpt.CheckpointError(f"{high} was trained with value_net={a_vnet} and finetuning starts from its "
                                f"critics: pass --value-net {a_vnet} (or init='policy')")
-  card_b = lambda config: PolicyCard.from_env(env, "high", config, low=dataclasses.asdict(low),
-                                              task_overrides=task_overrides)
-  card_a.compatible_with(card_b(config).replace(source=low.path), "finetune")
+  card_b = lambda config, **extra: PolicyCard.from_env(env, "high", config, low=low, task_overrides=task_overrides,
+                                                       **extra)
+  card_a.check_finetunes_to(card_b(config).replace(source=low.path))
   if spec.lr is not None:
     config = configs.replace(config, actor_lr=spec.lr, critic_lr=spec.lr, alpha_lr=spec.lr)
   if spec.learning_starts is not None:
@@ -251,13 +250,14 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
     plugins.append(kl_plugin(policy_apply, reference, kl_weight, anneal_steps, spec.mode, spec.mean_only,
                              reference_norm))
 
-  meta = dict(card_b(config).to_json(), finetuned_from=dict(path=str(high), agent=am.get("agent"), task=am.get("task"),
-                                      params=ckpt.params_label(a_metas), sha256=ckpt.content_hash(high),
-                                      seeds=n_a, init_seed_indices=pick.tolist(),
-                                      reference_seed=reference_seed,
-                                      reference_params=ref_meta.get("params", "final") if kl_weight > 0 else None,
-                                      reference_params_env_steps=ref_meta.get("params_env_steps") if kl_weight > 0 else None),
-                  init=spec.init, kl_weight=float(kl_weight), mode=spec.mode, mean_only=bool(spec.mean_only),
-                  anneal_frac=float(spec.anneal_frac), anneal_env_steps=float(anneal_steps))
-  label = f"finetune {am.get('agent')}->{env.env.agent.name} {task} kl_weight={kl_weight:g}"
-  return Stage(env, config, meta, label, plugins=tuple(plugins), save_extra=sac_extras)
+  kl_tied = kl_weight > 0
+  finetuned_from = FinetunedFrom(high, agent=card_a.agent, task=card_a.task, params=ckpt.params_label(a_metas),
+                                 sha256=ckpt.content_hash(high), seeds=n_a, init_seed_indices=tuple(pick.tolist()),
+                                 reference_seed=reference_seed,
+                                 reference_params=ref_meta.get("params", "final") if kl_tied else None,
+                                 reference_params_env_steps=ref_meta.get("params_env_steps") if kl_tied else None)
+  card = card_b(config, finetuned_from=finetuned_from, init=spec.init, kl_weight=float(kl_weight), mode=spec.mode,
+                mean_only=bool(spec.mean_only), anneal_frac=float(spec.anneal_frac),
+                anneal_env_steps=float(anneal_steps))
+  label = f"finetune {card_a.agent}->{env.env.agent.name} {task} kl_weight={kl_weight:g}"
+  return Stage(env, config, card, label, plugins=tuple(plugins), save_extra=sac_extras)

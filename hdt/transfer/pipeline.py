@@ -20,14 +20,9 @@ from hdt.envs.tasks import TASKS
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.align import AlignSpec, align_low
-from hdt.transfer.card import LowRef, PolicyCard, load_low, low_policy_fn  # noqa: F401 (part of this API)
+from hdt.transfer.card import LOW_PARAMS, LowRef, PolicyCard, load_low, low_policy_fn  # noqa: F401 (part of this API)
 from hdt.transfer.hierarchy import HighLevelEnv
 from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
-
-
-def env_meta(env, level: str, config: SACConfig, **extra) -> dict:
-  """The card (as meta.json) of a policy about to be trained on ``env`` with ``config``."""
-  return PolicyCard.from_env(env, level, config, **extra).to_json()
 
 
 # Options that only make sense positive (a zero k or box later breaks the HL over this LL).
@@ -79,17 +74,16 @@ def low_stage(agent: str, config: SACConfig | None = None, backend: str = "auto"
   check_env_overrides(env_overrides, agent, "reach")
   env = make(agent, "reach", backend=backend, **env_overrides)
   config = configs.low_config(agent) if config is None else config
-  return Stage(env, config, env_meta(env, "low", config, env_overrides=env_overrides), f"low {agent}")
+  return Stage(env, config, PolicyCard.from_env(env, "low", config, env_overrides=env_overrides), f"low {agent}")
 
 
 def high_env_with_low(task: str, low: LowRef | str | Path, backend: str = "auto", **kw) -> tuple[HighLevelEnv, LowRef]:
   """(the HL env of ``task`` over the frozen LL ``low``, the :class:`LowRef` an HL's card records of
   it: with its parameters' env steps and the seed's content hash)."""
   low = LowRef.of(low)
-  params, meta, _ = load_low(low.path, low.seed_index, low.params)
-  env = PolicyCard.from_json(meta, low.path).high_env(params["policy"], task, backend,
-                                                      low_obs_norm=params.get(ckpt.NORM), **kw)
-  return env, dataclasses.replace(low, params=meta["params"], params_env_steps=meta["params_env_steps"],
+  params, card, _ = load_low(low.path, low.seed_index, low.params or LOW_PARAMS)
+  env = card.high_env(params["policy"], task, backend, low_obs_norm=params.get(ckpt.NORM), **kw)
+  return env, dataclasses.replace(low, params=card.loaded, params_env_steps=card.loaded_env_steps,
                                   sha256=ckpt.content_hash(low.path, low.seed_index))
 
 
@@ -117,8 +111,8 @@ def high_stage(task: str, low: LowRef | str | Path, config: SACConfig | None = N
   check_env_overrides(task_overrides, task=task)
   env, low = high_env_with_low(task, low, backend, k=k, **task_overrides)
   config = configs.high_config(task) if config is None else config
-  meta = env_meta(env, "high", config, low=dataclasses.asdict(low), task_overrides=task_overrides)
-  return Stage(env, config, meta, f"high {task}", save_extra=sac_extras)
+  card = PolicyCard.from_env(env, "high", config, low=low, task_overrides=task_overrides)
+  return Stage(env, config, card, f"high {task}", save_extra=sac_extras)
 
 
 def sac_extras(ts) -> dict:
@@ -141,4 +135,5 @@ def full_stage(agent: str, task: str, config: SACConfig | None = None, backend: 
   check_env_overrides(env_overrides, agent, task)
   env = make(agent, task, backend=backend, **env_overrides)
   config = configs.full_config(agent, task) if config is None else config
-  return Stage(env, config, env_meta(env, "full", config, env_overrides=env_overrides), f"full {agent}/{task}")
+  card = PolicyCard.from_env(env, "full", config, env_overrides=env_overrides)
+  return Stage(env, config, card, f"full {agent}/{task}")

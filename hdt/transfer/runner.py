@@ -34,13 +34,8 @@ class RunResult:
   run_dir: Path | None
   params: Any  # {"policy", "q"} (+ "obs_norm", its observation statistics) with a leading seed axis
   history: dict[str, np.ndarray]  # leading seed axis
-  meta: dict  # the run's card as JSON (hdt.transfer.card.PolicyCard.to_json)
+  card: PolicyCard  # the run's card (its meta.json)
   best: dict | None = None  # best periodic evaluation per seed (hdt.agents.train.update_best)
-
-  @property
-  def card(self) -> PolicyCard:
-    return PolicyCard.from_json(self.meta, self.run_dir)
-
 
 
 def print_progress(total: int, quiet: bool = False, label: str = "", start: int = 0) -> Callable[[int, dict], None]:
@@ -70,15 +65,15 @@ class Stage:
 
   env: Any
   config: SACConfig
-  meta: dict  # meta.json: the PolicyCard as JSON (PolicyCard.to_json) and the stage's provenance
+  card: PolicyCard  # the card of the policy it trains (meta.json), with its provenance
   label: str  # names the stage in progress lines
   plugins: tuple[Plugin, ...] = ()  # folded over by make_train (hdt.agents.plugins)
   # save_extra(final TrainState) -> {name: pytree with a seed axis}, saved next to "policy" and "q"
   # in every seed's checkpoint (e.g. an aligned LL's discriminator, an HL's target critics)
   save_extra: Callable[[Any], dict] | None = None
-  # point_meta(meta, {plug-in hyper name: value}) -> the meta.json of a grid point that sets the
-  # plug-ins' hyper (hdt.agents.plugins); default: meta with each value under its name (kl_weight)
-  point_meta: Callable[[dict, dict], dict] | None = None
+  # point_card(card, {plug-in hyper name: value}) -> the card of a grid point that sets the plug-ins'
+  # hyper (hdt.agents.plugins); default: the card with each value in its extra under its name (kl_weight)
+  point_card: Callable[[PolicyCard, dict], PolicyCard] | None = None
   # {meta key: {field: value}}: fields of a meta.json section added after runs were saved, with the
   # value in effect before (e.g. hdt.agents.discriminator.ADDED_FIELDS): a run saved without them
   # resumes under those values, and a request for others is named as a difference
@@ -126,21 +121,24 @@ def run_stage(stage: Stage, options: RunOptions = RunOptions()) -> RunResult:
 def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -> list[RunResult]:
   """:func:`run_stage` for grid points ``[(hyper, out)]`` (hyper: values of SWEEPABLE fields replacing
   ``stage.config``'s, and of the stage's plug-ins' hyper, e.g. ``kl_weight``, recorded in the point's
-  meta by ``stage.point_meta``; ``options.out`` is not used) trained together as one vmapped program
+  card by ``stage.point_card``; ``options.out`` is not used) trained together as one vmapped program
   (``hdt.agents.train.run(hyper=...)``); each point writes its own run directory as if trained
   alone. Only a single point can resume."""
-  env, config, meta = stage.env, stage.config, stage.meta
+  env, config, card = stage.env, stage.config, stage.card
   resume, overwrite = options.resume, options.overwrite
   grid = {k: [h[k] for h, _ in points] for k in points[0][0]}
   configs = [dataclasses.replace(config, **{k: v for k, v in h.items() if k in SWEEPABLE}) for h, _ in points]
   plugin_values = [{k: float(v) for k, v in h.items() if k not in SWEEPABLE} for h, _ in points]
-  point_meta = stage.point_meta or (lambda meta, values: dict(meta, **values))
-  metas = [point_meta(meta, v) if v else meta for v in plugin_values]
+  point_card = stage.point_card or (lambda card, values: card.replace(extra=dict(card.extra, **values)))
+  cards = [point_card(card, v) if v else card for v in plugin_values]
+  cards = [c.replace(extra=dict(c.extra, sac=dataclasses.asdict(cfg))) if grid else c
+           for c, cfg in zip(cards, configs)]
+  meta = card.to_json()
   check_train_memory(env, config, options.seeds, len(points))
   seeds = sac_train.seed_list(options.seeds)
   if resume is not False and len(points) > 1:
     raise ValueError("resume continues one run: resume the grid points one at a time")
-  reads = inputs(meta)
+  reads = card.inputs()
   outputs = [_outputs(out, resume, overwrite, reads) for _, out in points]
   written = [os.path.realpath(d) for d, _ in outputs if d is not None]
   if len(set(written)) < len(written):
@@ -156,8 +154,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       dict(env=type(env).__name__, backend=backend, meta=meta, config=dataclasses.asdict(config)),
       sort_keys=True, default=str)
   trainer = sac_train.make_train(env, config, plugins=stage.plugins)
-  infos = [dict(config=dataclasses.asdict(c), meta=dict(m, sac=dataclasses.asdict(c)) if grid else m,
-                seeds=seeds) for c, m in zip(configs, metas)]
+  infos = [dict(config=dataclasses.asdict(cfg), meta=c.to_json(), seeds=seeds) for cfg, c in zip(configs, cards)]
   if source is not None:
     _check_resumable(source, infos[0], extendable=not stage.plugins, legacy_meta=stage.legacy_meta)
   S = len(seeds)
@@ -211,7 +208,8 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       if run_dir is not None:
         with interrupt.deferred():  # a Ctrl-C here would leave some seeds unwritten
           _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p)
-      results.append(RunResult(run_dir, res_p.params, res_p.history, infos[p]["meta"], res_p.best))
+      source = None if run_dir is None else str(run_dir)
+      results.append(RunResult(run_dir, res_p.params, res_p.history, cards[p].replace(source=source), res_p.best))
   return results
 
 
@@ -270,15 +268,6 @@ def _seed_best(best: dict | None, i: int) -> tuple[dict, dict] | None:
               criterion=f"highest mean {sac_train.BEST_CRITERION} over the periodic evaluations")
   return {k: jax.tree.map(lambda x: x[i], v) for k, v in best.items() if k not in ("return", "env_steps")}, info
 
-
-
-# The runs a stage reads, by where its card records them (hdt.transfer.rundir never writes over them).
-INPUTS = ("low", "aligned_to", "finetuned_from")
-
-
-def inputs(meta: dict) -> dict[str, str]:
-  """{what: run directory} of the runs a stage's card ``meta`` says it reads."""
-  return {k: meta[k]["path"] for k in INPUTS if isinstance(meta.get(k), dict) and isinstance(meta[k].get("path"), str)}
 
 
 def _outputs(out, resume, overwrite=False, reads=()) -> tuple[Path | None, Path | None]:
