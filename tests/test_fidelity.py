@@ -149,8 +149,8 @@ def test_waypoint_hl_reward_is_100_once_when_reached_within_the_step():
   n = jax.jit(hl.step)(s, jnp.asarray(z, jnp.float32))
   if float(n.metrics["waypoints"]) > 0:
     assert float(n.reward) == pytest.approx(100.0 - 0.25 * np.linalg.norm(z * hl.delta_max), abs=1e-4)
-  else:  # too far for one HL step: -0.1 * distance at the end
-    d = np.linalg.norm(np.asarray(n.next_obs_hi[:2]) - wp)
+  else:  # too far for one HL step: -0.1 * the 3-D distance at the end (torso origin z 0, target z 0.3)
+    d = np.hypot(np.linalg.norm(np.asarray(n.next_obs_hi[:2]) - wp), 0.3)
     assert float(n.reward) == pytest.approx(-0.1 * d - 0.25 * np.linalg.norm(z * hl.delta_max), abs=1e-4)
 
 

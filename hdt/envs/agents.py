@@ -5,13 +5,15 @@ from hdt.envs.spec import AgentSpec
 
 AGENTS: dict[str, AgentSpec] = {
     "point": AgentSpec("point", xml="point.xml", **NAV),
-    "ant": AgentSpec("ant", xml="ant.xml", **LEGGED),
-    "ant3": AgentSpec("ant3", xml="ant3.xml", **LEGGED),
-    "ant2": AgentSpec("ant2", xml="ant2.xml", **LEGGED),
+    # The authors' legged robots observe their clipped cfrc_ext (ant.py Ant.state, quadruped.py);
+    # a robot file of the legged family observes its touch sensors unless it sets hdt_contact_forces.
+    "ant": AgentSpec("ant", xml="ant.xml", contact_forces=True, **LEGGED),
+    "ant3": AgentSpec("ant3", xml="ant3.xml", contact_forces=True, **LEGGED),
+    "ant2": AgentSpec("ant2", xml="ant2.xml", contact_forces=True, **LEGGED),
     # quadruped.py Quadruped.reset_func starts as the maze classes (+-0.1, 0.1 N(0, 1)), not as Ant
     "quadruped": AgentSpec("quadruped", xml="quadruped.xml",
                            **dict(LEGGED, frame_skip=3, k=64, ll_horizon=150, fall_z=(0.15, 0.9),
-                                  open_noise=())),
+                                  open_noise=(), contact_forces=True)),
     # ReacherPM.reset: every LL episode restarts at (0, 0) +- 0.05, every HL episode at (0.2, 0) +- 0.05.
     "arm_point": AgentSpec("arm_point", xml="arm_point.xml", qpos_skip=2,
                            **dict(MANIP, init_noise=0.05, reset_prob=1.0, ll_qpos_offset=(-0.2, 0.0))),

@@ -15,7 +15,7 @@ import numpy as np
 NAV = dict(family="nav", frame_skip=3, k=32, ll_horizon=100, qpos_skip=2, delta_max=4.0,
            reset_prob=0.1, ctrl_cost=0.5, reach_eps=0.27, ll_budget=200_000, open_noise=(0.4, 0.1))
 LEGGED = dict(NAV, frame_skip=5, fall_z=(0.2, 1.0), survive_bonus=0.7, ll_budget=2_500_000,
-              open_noise=(0.13, 0.13), contact_forces=True)
+              open_noise=(0.13, 0.13))
 MANIP = dict(family="manip", frame_skip=3, k=35, delta_max=0.07, ll_horizon=45, reset_prob=0.25,
              ctrl_cost=0.05, reach_eps=0.01, success_bonus=4.0, init_noise=0.1, init_vel_noise=0.005,
              ll_budget=1_200_000)
