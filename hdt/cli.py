@@ -37,6 +37,7 @@ import importlib.util
 import itertools
 import json
 import time
+import types
 import typing
 from pathlib import Path
 
@@ -95,19 +96,17 @@ def _bool(text: str) -> bool:
   raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
 
 
-def _field_type(f: dataclasses.Field):
-  hint = typing.get_type_hints(SACConfig).get(f.name) if f.name in SACConfig.__dataclass_fields__ \
-      else typing.get_type_hints(DiscConfig).get(f.name)
-  text = str(hint)
-  if text == str(bool):
+def _field_type(cls, f: dataclasses.Field) -> dict:
+  """argparse's ``type`` (and ``nargs``) of a config field, from its annotation: ``X | None`` as X, a
+  bool as true/false, ``tuple[X, ...]`` as one X or more, else the type itself."""
+  hint = typing.get_type_hints(cls)[f.name]
+  if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+    hint = next(a for a in typing.get_args(hint) if a is not type(None))
+  if hint is bool:
     return dict(type=_bool)
-  if "tuple" in text:
-    return dict(type=int, nargs="+")
-  if "float" in text:
-    return dict(type=float)
-  if "int" in text:
-    return dict(type=int)
-  return dict(type=str)
+  if typing.get_origin(hint) is tuple:
+    return dict(type=typing.get_args(hint)[0], nargs="+")
+  return dict(type=hint)
 
 
 def _add_dataclass_options(p, cls, prefix: str, title: str, note: str):
@@ -115,7 +114,7 @@ def _add_dataclass_options(p, cls, prefix: str, title: str, note: str):
   for f in dataclasses.fields(cls):
     default = f.default if f.default is not dataclasses.MISSING else None
     g.add_argument(f"--{prefix}{f.name.replace('_', '-')}", dest=f"{prefix.replace('-', '_')}{f.name}",
-                   default=None, metavar=f.name.upper(), **_field_type(f),
+                   default=None, metavar=f.name.upper(), **_field_type(cls, f),
                    help=f"default: from the agent/level and --preset (class default {default})" if prefix == ""
                    else f"default: by A's agent, the paper's table (class default {default})")
 
@@ -563,9 +562,9 @@ def _grid_value(name: str, text: str, field: dataclasses.Field):
   """One --grid value, of the SAC field's type (finite numbers; tuples are not swept); a float for a
   plug-in weight (``field`` None)."""
   import math
-  want = float if field is None else _field_type(field).get("type")
+  want = float if field is None else _field_type(SACConfig, field).get("type")
   value = _parse_value(text.strip())
-  if field is not None and _field_type(field).get("nargs"):
+  if field is not None and _field_type(SACConfig, field).get("nargs"):
     raise CLIError(f"--grid {name}: tuple fields cannot be swept; pass --{name.replace('_', '-')} per run")
   if want is int:
     ok = isinstance(value, int) and not isinstance(value, bool)

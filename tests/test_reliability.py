@@ -867,16 +867,6 @@ def test_mujoco_warnings_are_counted_not_printed(capfd):
   assert len(err.strip().splitlines()) == 1 and err.startswith(f"MuJoCo reported {len(warned)} simulation warning")
 
 
-def test_progress_rate_and_eta_count_only_this_process_steps(monkeypatch, capsys):
-  # a run resumed at 900k of 1M steps that took 10 s for its next 10k: 1000/s, ETA 90 s
-  from hdt.transfer import runner
-  clock = iter([0.0, 10.0])
-  monkeypatch.setattr(runner.time, "perf_counter", lambda: next(clock))
-  runner.print_progress(1_000_000, label="low", start=900_000)(910_000, {})
-  line = capsys.readouterr().err
-  assert "910000/1000000 steps 1000/s ETA 90s" in line, line
-
-
 def test_an_alignment_saved_before_a_disc_field_existed_resumes_under_its_old_value(monkeypatch):
   """A run saved before a DiscConfig field existed ran with that field's earlier behaviour
   (disc_lib.ADDED_FIELDS): asking for that value resumes it, the new default is named as a difference.

@@ -3,20 +3,17 @@ line naming what to lower, instead of an allocation failure minutes later."""
 
 from __future__ import annotations
 
-import os
-
 import jax
 import numpy as np
+import psutil
 
 from hdt.agents.sac import SACConfig
 
 
 def _available_bytes() -> int:
-  try:
-    with open("/proc/meminfo") as f:
-      return next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
-  except (OSError, StopIteration, ValueError):
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+  """Memory a new allocation can get without swapping (psutil: MemAvailable on Linux, its equivalent
+  elsewhere)."""
+  return int(psutil.virtual_memory().available)
 
 
 def _tree_bytes(tree) -> int:

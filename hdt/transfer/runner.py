@@ -11,7 +11,6 @@ import functools
 import json
 import os
 import sys
-import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -19,6 +18,7 @@ import jax
 import numpy as np
 
 from hdt import atomic, interrupt
+from hdt.progress import run_progress
 from hdt.agents import sharding
 from hdt.agents import train as sac_train
 from hdt.agents.plugins import Plugin
@@ -36,26 +36,6 @@ class RunResult:
   history: dict[str, np.ndarray]  # leading seed axis
   card: PolicyCard  # the run's card (its meta.json)
   best: dict | None = None  # best periodic evaluation per seed (hdt.agents.train.update_best)
-
-
-def print_progress(total: int, quiet: bool = False, label: str = "", start: int = 0) -> Callable[[int, dict], None]:
-  """A one-line progress report per chunk: steps, steps/s, ETA and the latest evaluation. ``start``:
-  the env steps a resumed run had already taken (not counted in its rate)."""
-  t0 = time.perf_counter()
-
-  def progress(step, metrics):
-    if quiet:
-      return
-    dt = time.perf_counter() - t0
-    rate = (step - start) / max(dt, 1e-9)
-    evals = {k[5:]: float(np.mean(v)) for k, v in metrics.items()
-             if k in ("eval/return", "eval/success_max", "eval/goal_dist")}
-    ev = " ".join(f"{k}={v:.3g}" for k, v in evals.items())
-    frac = step / total
-    bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
-    print(f"{label} [{bar}] {step}/{total} steps {rate:.0f}/s ETA {(total - step) / max(rate, 1e-9):.0f}s {ev}",
-          file=sys.stderr, flush=True)
-  return progress
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,7 +78,7 @@ class RunOptions:
   overwrite: replace an existing run in ``out`` as a whole (without it, an existing run is refused;
     a directory that is not an hdt run is always refused, see :mod:`hdt.transfer.rundir`).
   progress: progress(total, quiet, label) -> fn(env_steps, metrics), called after every chunk;
-    default :func:`print_progress` (looked up per run, so it can be swapped).
+    default :func:`hdt.progress.run_progress` (a live bar on a terminal, a line per chunk in a log).
   """
 
   seeds: int | Sequence[int] = 1
@@ -187,7 +167,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
     start = 0 if ts is None else int(np.max(jax.device_get(ts.env_steps)))
     if not options.quiet:
       _device_hint(len(points) * S, stage.label)
-    progress = (options.progress or functools.partial(print_progress, start=start))(
+    progress = (options.progress or functools.partial(run_progress, start=start))(
         config.total_env_steps, options.quiet, stage.label)
     try:
       with counted_mujoco_warnings(options.quiet) as warned:
@@ -200,6 +180,8 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
               " The last good training states are kept in each run directory's state/." if kept else "")
       note += f" MuJoCo reported {len(warned)} simulation warning(s) before." if warned else ""
       raise sac_train.TrainingDiverged(str(e) + note, e.term, e.env_step, e.seeds) from None
+    finally:
+      getattr(progress, "close", lambda: None)()  # a live bar ends however training does
     params = dict(res.params, **(stage.save_extra(res.state) if stage.save_extra else {}))
     results = []
     for p, (run_dir, _) in enumerate(outputs):
