@@ -61,12 +61,12 @@ def trained_over(high: PolicyCard, low: str | Path) -> int | None:
 
 def check_low_unchanged(high: str | Path, card: PolicyCard, low: str | Path) -> None:
   """Refuses an HL over the LL run it was trained over if that LL changed since (retrained): against
-  the hash the HL's card records, or for a zoo HL without one, its zoo.json."""
+  every hash recorded of it, the HL's card's and (a zoo HL) its zoo.json's."""
   seed = trained_over(card, low)
-  want = None if seed is None else card.low.sha256 or names.recorded_low_hash(high)
-  if not want:
-    return  # another LL (a transfer, not a dependency), or nothing recorded (ckpt.load checks the LL's own record)
-  if want not in names.hash_aliases(low, seed):
+  if seed is None:
+    return  # another LL: a transfer, not a dependency (ckpt.load checks the LL's own record)
+  wanted = {h for h in (card.low.sha256, names.recorded_low_hash(high)) if h}
+  if wanted - names.hash_aliases(low, seed):
     raise ckpt.CheckpointError(f"the LL in {low} changed after the HL in {high} was trained over it (its "
                                f"content hash differs: was it retrained?); retrain the HL over it, or "
                                f"restore the LL it was trained over")
