@@ -26,11 +26,15 @@ def _with_family(src: Path, family: str, tmp_path: Path, extra: str = "") -> Pat
   return out
 
 
-@pytest.mark.parametrize("agent,family", [("arm4", "manip"), ("ant", "legged"), ("point", "nav")])
-def test_registry_robots_from_their_files_get_the_registry_spec(agent, family, tmp_path):
+# The ant observes the authors' cfrc_ext on top of the legged family's defaults: one custom field.
+CFRC = '<numeric name="hdt_contact_forces" data="1"/>'
+
+
+@pytest.mark.parametrize("agent,family,extra", [("arm4", "manip", ""), ("ant", "legged", CFRC), ("point", "nav", "")])
+def test_registry_robots_from_their_files_get_the_registry_spec(agent, family, extra, tmp_path):
   """Family defaults (and the arms' joint-limit start noise) reproduce the registry's entries, so a
   file-only robot is configured as hdt configures its own robots."""
-  spec = load_robot(_with_family(XML_DIR / "agents" / f"{agent}.xml", family, tmp_path))
+  spec = load_robot(_with_family(XML_DIR / "agents" / f"{agent}.xml", family, tmp_path, extra))
   ref = E.AGENTS[agent]
   diff = {f.name for f in dataclasses.fields(ref) if getattr(spec, f.name) != getattr(ref, f.name)}
   assert diff == {"name", "xml"}, {f: (getattr(spec, f), getattr(ref, f)) for f in diff}
