@@ -29,6 +29,7 @@ from hdt.agents.discriminator import DiscConfig
 from hdt.agents.sac import SACConfig
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import pipeline, runner, sweep
+from hdt.transfer.card import PolicyCard
 from hdt.transfer.runner import RunOptions
 from toy_env import PointGoal
 
@@ -36,7 +37,8 @@ ENV = PointGoal()
 # 8 chunks of 25 training steps x 4 envs; learning starts in the first chunk.
 CFG = SACConfig(hidden_sizes=(16, 16), batch_size=16, buffer_size=500, num_envs=4, steps_per_chunk=25,
                 total_env_steps=800, learning_starts=40, num_eval_episodes=4)
-META = dict(level="low", agent="toy", task="reach")
+CARD = PolicyCard(level="low", agent="toy", task="reach", family="nav", goal_space=None, k=1, delta_max=1.0,
+                  obs_size=ENV.observation_size, action_size=ENV.action_size, hidden_sizes=CFG.hidden_sizes)
 HALF = CFG.total_env_steps // 2
 # The resumed runs carry plug-in state too: a discriminator (hdt.transfer.align's) against random taus.
 _ALIGN = disc_lib.make_alignment(
@@ -51,7 +53,7 @@ class Interrupted(Exception):
 
 
 def train(out, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN, **kw):
-  return runner.run_stage(runner.Stage(env, config, META, "toy", plugins=plugins),
+  return runner.run_stage(runner.Stage(env, config, CARD, "toy", plugins=plugins),
                           runner.RunOptions(list(seeds), out, quiet=True, **kw))
 
 
@@ -388,7 +390,7 @@ from hdt.envs import make  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
 from hdt.transfer.align import align_low  # noqa: E402
 from hdt.transfer.evaluate import compose, evaluate  # noqa: E402
-from hdt.transfer.card import LowRef, PolicyCard  # noqa: E402
+from hdt.transfer.card import LowRef  # noqa: E402
 from hdt.transfer.finetune import FinetuneSpec, finetune_high  # noqa: E402
 from hdt.transfer.hierarchy import HighLevelEnv  # noqa: E402
 from hdt.transfer import names, zoo  # noqa: E402

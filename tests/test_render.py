@@ -31,7 +31,7 @@ def random_policy(agent: str) -> Policy:
   env = make(agent, "reach")
   card = PolicyCard.from_env(env, "low", SACConfig(hidden_sizes=(16, 16)))
   net = nets.make_sac_networks(env.observation_size, env.action_size, (16, 16))
-  return Policy(jax.tree.map(lambda x: x[None], net.policy_init(jax.random.PRNGKey(0))), card.to_json())
+  return Policy(jax.tree.map(lambda x: x[None], net.policy_init(jax.random.PRNGKey(0))), card)
 
 
 @pytest.fixture(scope="module")
