@@ -47,7 +47,7 @@ def measure(agent: str, envs: int, updates: int, seeds: int, chunks: int) -> dic
   cfg = configs.low_config(agent, num_envs=envs, updates_per_step=updates, steps_per_chunk=steps,
                            learning_starts=0, total_env_steps=steps * envs * (chunks + 1), buffer_size=100_000)
   fns = sac_train.vmapped(sac_train.make_train(env, cfg), seeds)
-  ts = fns.init(sac_train.seed_keys(range(seeds)))
+  ts = fns.init(sac_train.seed_keys(range(seeds)), sac_train.seed_indices(seeds))
   t0 = time.perf_counter()
   ts, _ = fns.run_chunk(ts)
   jax.block_until_ready(ts)

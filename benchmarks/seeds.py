@@ -63,7 +63,7 @@ def _mem_stats():
 
 def child_seeds(agent, overrides, seeds, mode):
   import jax
-  from hdt.agents.train import make_train, seed_keys, vmapped
+  from hdt.agents.train import make_train, seed_indices, seed_keys, vmapped
   from hdt.envs import make
   from hdt.transfer import configs
 
@@ -76,7 +76,7 @@ def child_seeds(agent, overrides, seeds, mode):
   groups = [list(range(seeds))] if mode == "vmap" else [[s] for s in range(seeds)]
   compile_s = 0.0
   for g in groups:
-    ts = fns.init(seed_keys(g))
+    ts = fns.init(seed_keys(g), seed_indices(len(g)))
     if chunk is None:
       tc = time.perf_counter()
       chunk = fns.run_chunk.lower(ts).compile()
@@ -95,7 +95,7 @@ def child_seeds(agent, overrides, seeds, mode):
 def child_compile(agent, steps_per_chunk, num_envs, updates_per_step):
   import jax
   import numpy as np
-  from hdt.agents.train import make_train, seed_keys, vmapped
+  from hdt.agents.train import make_train, seed_indices, seed_keys, vmapped
   from hdt.envs import make
   from hdt.transfer import configs
 
@@ -107,7 +107,7 @@ def child_compile(agent, steps_per_chunk, num_envs, updates_per_step):
   trainer = make_train(env, cfg)
   fns = vmapped(trainer)
   t = time.perf_counter()
-  ts = jax.block_until_ready(fns.init(seed_keys([0])))
+  ts = jax.block_until_ready(fns.init(seed_keys([0]), seed_indices(1)))
   init_s = time.perf_counter() - t
   rss_init = _maxrss_mb()
   # (a) compile in isolation (AOT), (b) the first call through the jitted function (trace +

@@ -50,7 +50,7 @@ sys.path.insert(0, HERE)
 from hdt.agents import networks as nets  # noqa: E402
 from hdt.cache import enable_compile_cache  # noqa: E402
 from hdt.agents.sharding import use_cpu_cores  # noqa: E402
-from hdt.agents.train import make_train, seed_keys, vmapped  # noqa: E402
+from hdt.agents.train import make_train, seed_indices, seed_keys, vmapped  # noqa: E402
 from hdt.envs import make  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
 
@@ -171,7 +171,7 @@ def hdt_loop_seeds(label, env, cfg, seeds, make_eval, thresholds, max_seconds, l
   ``len(seeds)`` times it."""
   trainer = make_train(env, cfg)
   fns = vmapped(trainer, num_seeds=len(seeds))
-  ts = jax.block_until_ready(fns.init(seed_keys(seeds)))
+  ts = jax.block_until_ready(fns.init(seed_keys(seeds), seed_indices(len(seeds))))
   t_init = time.perf_counter() - t0
   tc, hits0 = time.perf_counter(), len(_cache_hits)
   chunk = fns.run_chunk.lower(ts).compile()

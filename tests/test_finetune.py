@@ -129,11 +129,9 @@ def test_large_beta_keeps_finetuned_hl_close_to_a(pm_runs):
   assert kl_free > DRIFT, kl_free
 
   # The KL term was active (weight annealed from 100 towards 0) only in the tied run.
-  assert "kl" in tied.history and "regularizer" not in tied.history  # logged under its own name
+  assert "kl" in tied.history and "kl" not in free.history  # logged under the plug-in's name
   w = tied.history["kl_weight"][0]
   assert 40.0 < w[-1] < 50.0  # beta(t) = 100 * (1 - t / 1000) averaged over the learning steps (t > 100)
-  assert np.all(free.history["regularizer_weight"][0] == 1.0)  # default schedule, no regulariser
-  assert np.all(free.history["regularizer"][0] == 0.0)
 
   # Checkpoint metadata says where it came from.
   _, m = ckpt.load(tied.run_dir, 0)
@@ -151,8 +149,9 @@ def _capture(captured):
   TrainState it starts training from and the run's meta."""
   def run(stage, options):
     trainer = sac_train.make_train(stage.env, stage.config, plugins=stage.plugins)
-    keys = sac_train.seed_keys(sac_train.seed_list(options.seeds))
-    captured.update(trainer=trainer, initial_state=sac_train.vmapped(trainer).init(keys), meta=stage.card.to_json())
+    seeds = sac_train.seed_list(options.seeds)
+    ts = sac_train.vmapped(trainer).init(sac_train.seed_keys(seeds), sac_train.seed_indices(len(seeds)))
+    captured.update(trainer=trainer, initial_state=ts, meta=stage.card.to_json())
   return run
 
 

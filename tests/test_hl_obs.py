@@ -57,7 +57,7 @@ def test_training_updates_the_statistics_apart_from_the_networks_over_seeds():
                   total_env_steps=40, learning_starts=4, num_eval_episodes=2, normalize_observations=True)
   trainer = sac_train.make_train(PointGoal(), cfg)
   fns = sac_train.vmapped(trainer, 2)
-  ts = fns.init(sac_train.seed_keys([0, 1]))
+  ts = fns.init(sac_train.seed_keys([0, 1]), sac_train.seed_indices(2))
   ts, _ = fns.run_chunk(ts)
   np.testing.assert_array_equal(ts.agent.obs_norm["count"], ts.env_steps.astype(np.float32))
   assert ts.agent.obs_norm["mean"].shape == (2, 4)

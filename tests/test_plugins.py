@@ -56,7 +56,7 @@ def test_the_kl_reference_is_per_seed_state():
   networks = sac_train.make_networks(ENV, CFG)
   trainer = sac_train.make_train(ENV, CFG, networks=networks,
                                  plugins=[kl_plugin(networks.policy_apply, _reference(networks), 1.0, 1e6)])
-  ts = sac_train.vmapped(trainer).init(sac_train.seed_keys([0, 1]))
+  ts = sac_train.vmapped(trainer).init(sac_train.seed_keys([0, 1]), sac_train.seed_indices(2))
   own = jax.tree.map(lambda r, p: r.at[1].set(p[1]), ts.aux[KL_REFERENCE], ts.agent.policy_params)
   ts = ts.replace(aux=dict(ts.aux, **{KL_REFERENCE: own}))
   ts, m = sac_train.vmapped(trainer).run_chunk(ts)  # learning starts within the first chunk
@@ -64,14 +64,43 @@ def test_the_kl_reference_is_per_seed_state():
   assert reg[0] > 1e-3 and reg[1] < 0.1 * reg[0], reg  # seed 1 starts at its reference
 
 
+def test_regularizers_compose_each_with_its_schedule_and_name():
+  """Two regularising plug-ins and two with transition extras in one run: each term is weighted by its
+  own schedule and logged under its plug-in's name; each plug-in gets back its own extras."""
+  seen = {}
+
+  def extras(name, value):
+    def update(state, transitions, env_steps, key):
+      seen[name] = transitions.extras  # traced: the shapes are what matter
+      return state, {}
+    return dict(transition_extras=lambda s, n: {"v": jnp.full((), value)}, update=update)
+
+  a = Plugin("a", regularizer=lambda state, params, obs: jnp.float32(1.0), schedule=lambda t: jnp.float32(0.5),
+             **extras("a", 1.0))
+  b = Plugin("b", regularizer=lambda state, params, obs: jnp.float32(3.0), **extras("b", 2.0))
+  trainer = sac_train.make_train(ENV, CFG, plugins=[a, b])
+  ts, m = sac_train.vmapped(trainer).run_chunk(
+      sac_train.vmapped(trainer).init(sac_train.seed_keys([0]), sac_train.seed_indices(1)))
+  assert (float(m["a"][0]), float(m["a_weight"][0]), float(m["b"][0]), float(m["b_weight"][0])) == (1, 0.5, 3, 1)
+  assert set(ts.replay.data.extras) == {"a", "b"} and set(seen["a"]) == set(seen["b"]) == {"v"}
+  assert float(ts.replay.data.extras["b"]["v"][0, 0]) == 2.0
+  with pytest.raises(ValueError, match="'c' has a schedule but no regularizer"):
+    sac_train.make_train(ENV, CFG, plugins=[Plugin("c", schedule=lambda t: 1.0)])
+
+
+def test_plugins_see_their_seed_index():
+  """init gets each seed's place in the run's seeds (the same in every grid point)."""
+  plugin = Plugin("i", init=lambda key, agent, seed_index: (agent, {"i": jnp.asarray(seed_index)}))
+  trainer = sac_train.make_train(ENV, CFG, plugins=[plugin])
+  ts = sac_train.vmapped(trainer).init(sac_train.seed_keys([5, 9, 5, 9]), sac_train.seed_indices(2, 2))
+  assert np.asarray(ts.aux["i"]).tolist() == [0, 1, 0, 1]
+
+
 def test_plugins_that_cannot_combine_are_refused():
-  reg = lambda state, params, obs: jnp.zeros(())
-  with pytest.raises(ValueError, match="each define regularizer; at most one plug-in may"):
-    sac_train.make_train(ENV, CFG, plugins=[Plugin("a", regularizer=reg), Plugin("b", regularizer=reg)])
-  init = lambda key, agent: (agent, {"x": jnp.zeros(())})
+  init = lambda key, agent, seed_index: (agent, {"x": jnp.zeros(())})
   with pytest.raises(ValueError, match=r"plug-in 'b' uses TrainState.aux keys \['x'\] that another plug-in owns"):
     sac_train.make_train(ENV, CFG, plugins=[Plugin("a", init=init), Plugin("b", init=init)])
   with pytest.raises(ValueError, match="each plug-in needs its own name"):
     sac_train.make_train(ENV, CFG, plugins=[Plugin("a"), Plugin("a")])
   with pytest.raises(TypeError, match="initial state must be a dict"):
-    sac_train.make_train(ENV, CFG, plugins=[Plugin("a", init=lambda key, agent: (agent, jnp.zeros(())))])
+    sac_train.make_train(ENV, CFG, plugins=[Plugin("a", init=lambda key, agent, i: (agent, jnp.zeros(())))])

@@ -29,7 +29,7 @@ from hdt.agents.discriminator import DiscConfig
 from hdt.agents.sac import SACConfig
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import pipeline, runner, sweep
-from hdt.transfer.card import PolicyCard
+from hdt.transfer.card import LowRef, PolicyCard
 from hdt.transfer.runner import RunOptions
 from toy_env import PointGoal
 
@@ -71,7 +71,8 @@ def assert_trees_equal(a, b):
 
 def saved_state(run_dir, config=CFG, seeds=(0, 3), env=ENV, plugins=ALIGN):
   trainer = sac_train.make_train(env, config, plugins=plugins)
-  template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(list(seeds)))
+  template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(list(seeds)),
+                            sac_train.seed_indices(len(list(seeds))))
   return ckpt.load_state(run_dir, template)[:3]
 
 
@@ -390,7 +391,6 @@ from hdt.envs import make  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
 from hdt.transfer.align import align_low  # noqa: E402
 from hdt.transfer.evaluate import compose, evaluate  # noqa: E402
-from hdt.transfer.card import LowRef  # noqa: E402
 from hdt.transfer.finetune import FinetuneSpec, finetune_high  # noqa: E402
 from hdt.transfer.hierarchy import HighLevelEnv  # noqa: E402
 from hdt.transfer import names, zoo  # noqa: E402

@@ -11,7 +11,7 @@ import pytest
 from hdt.agents import replay
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig
-from hdt.agents.train import NONFINITE, eval_key, make_train, run, seed_keys, vmapped
+from hdt.agents.train import NONFINITE, eval_key, make_train, run, seed_indices, seed_keys, vmapped
 from toy_env import PointGoal
 
 ENV = PointGoal()
@@ -148,7 +148,7 @@ def test_replay_is_updated_in_place(seeds):
     chunk, ts = CHUNK, jax.eval_shape(TRAINER.init, jax.random.PRNGKey(0))
   else:
     fns = vmapped(TRAINER)
-    chunk, ts = fns.run_chunk, jax.eval_shape(fns.init, seed_keys(range(seeds)))
+    chunk, ts = fns.run_chunk, jax.eval_shape(fns.init, seed_keys(range(seeds)), seed_indices(seeds))
   assert _buffer_copies(chunk.lower(ts).compile().as_text()) == []
 
 
@@ -218,7 +218,7 @@ def test_plugins_are_wired_into_the_training_step():
 
   trainer = make_train(ENV, cfg, plugins=[Plugin(
       "custom",
-      init=lambda key, agent: (agent, {"count": jnp.zeros((), jnp.int32), "reward_sum": jnp.zeros(())}),
+      init=lambda key, agent, seed_index: (agent, {"count": jnp.zeros((), jnp.int32), "reward_sum": jnp.zeros(())}),
       update=aux_update,
       reward=lambda aux, batch: jnp.full_like(batch.reward, 3.0) + 0.0 * aux["reward_sum"],
       regularizer=lambda aux, params, obs: jnp.float32(2.0),
@@ -229,8 +229,8 @@ def test_plugins_are_wired_into_the_training_step():
   np.testing.assert_allclose(float(ts.aux["reward_sum"]), float(jnp.sum(ts.replay.data.reward)), rtol=1e-5)
   assert float(m["aux_count"]) == pytest.approx(5.5)  # mean of 1..10 over the chunk
   assert float(m["batch_reward"]) == pytest.approx(3.0)  # rewards recomputed at sample time
-  assert float(m["regularizer"]) == pytest.approx(2.0)
-  assert float(m["regularizer_weight"]) == pytest.approx(0.5)
+  assert float(m["custom"]) == pytest.approx(2.0)  # logged under the plug-in's name
+  assert float(m["custom_weight"]) == pytest.approx(0.5)
   assert int(ts.agent.update_steps) == 10 - 4 + 1
 
 

@@ -128,13 +128,15 @@ def test_actor_loss_matches_numpy_and_adds_regularizer():
   ref = np.mean(np.exp(np.float64(LOG_ALPHA)) * logp - np.min(np_q(Q, obs, a), -1))
   np.testing.assert_allclose(float(loss), ref, rtol=1e-5)
   np.testing.assert_allclose(aux["log_prob"], logp, rtol=1e-5)
-  assert float(aux["regularizer"]) == 0.0
+  assert aux["regularizer"] == {}
 
-  reg = lambda p, o: jnp.sum(p["W"] ** 2) + jnp.mean(o)
+  def reg(p, o):  # a term weighted 0.5, and what it logs
+    term = jnp.sum(p["W"] ** 2) + jnp.mean(o)
+    return 0.5 * term, {"custom": term, "custom_weight": 0.5}
   _, actor_loss_reg, _ = losses(actor_regularizer=reg)
-  loss_reg, aux_reg = jax.jit(actor_loss_reg)(POLICY, Q, LOG_ALPHA, BATCH.obs, EPS, 0.5)
+  loss_reg, aux_reg = jax.jit(actor_loss_reg)(POLICY, Q, LOG_ALPHA, BATCH.obs, EPS)
   reg_ref = np.sum(np.float64(POLICY["W"]) ** 2) + obs.mean()
-  np.testing.assert_allclose(float(aux_reg["regularizer"]), reg_ref, rtol=1e-5)
+  np.testing.assert_allclose(float(aux_reg["regularizer"]["custom"]), reg_ref, rtol=1e-5)
   np.testing.assert_allclose(float(loss_reg), ref + 0.5 * reg_ref, rtol=1e-5)
 
 

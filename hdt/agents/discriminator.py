@@ -240,7 +240,7 @@ class Alignment(NamedTuple):
   def plugin(self) -> Plugin:
     """The alignment as one :class:`hdt.agents.plugins.Plugin` (combinable with others); its hyper
     ``disc_weight`` is the reward weight w0 (``cfg.weight``), vmappable over a grid."""
-    return Plugin(name="discriminator", init=lambda key, agent: (agent, self.aux_init(key)),
+    return Plugin(name="discriminator", init=lambda key, agent, seed_index: (agent, self.aux_init(key)),
                   update=self.aux_update, reward=self.reward_fn,
                   transition_extras=self.transition_extras, hyper={WEIGHT: float(self.cfg.weight)})
 

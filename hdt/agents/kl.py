@@ -104,7 +104,7 @@ def kl_plugin(policy_apply, reference_params: Params, kl_weight: float, anneal_s
   anneal = linear_anneal(1.0, anneal_steps)
   return Plugin(
       name="kl",
-      init=lambda key, agent: (agent, dict(state)),
+      init=lambda key, agent, seed_index: (agent, dict(state)),
       regularizer=lambda state, params, obs, obs_norm=None, kl_weight=None: term(
           params, state[KL_REFERENCE], obs, obs_norm, state.get(KL_REFERENCE_OBS_NORM)),
       schedule=lambda env_steps, kl_weight: kl_weight * anneal(env_steps),

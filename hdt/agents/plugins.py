@@ -4,7 +4,9 @@ list that it folds over. Every hook is optional.
 
 A plug-in's state is per seed: it lives in ``TrainState.aux``, a dict that merges the state dicts of
 all plug-ins (each plug-in owns its keys; two plug-ins may not share a key), and each hook sees only
-its own plug-in's keys.
+its own plug-in's keys. Any number of plug-ins combine: each regulariser is weighted by its own
+schedule and logged under the plug-in's name (``<name>``, ``<name>_weight``), and each plug-in's
+transition extras are stored under its name and handed back to it alone.
 """
 
 from __future__ import annotations
@@ -21,21 +23,24 @@ State = dict  # a plug-in's state: a dict of pytrees (its keys in TrainState.aux
 class Plugin:
   """One method's hooks into SAC training (all optional, no-ops when None).
 
-  init(key, agent) -> (agent, state): the plug-in's initial state; it may also set the starting
-    SACState (e.g. another policy's parameters). Called once per seed, after the SAC init.
+  init(key, agent, seed_index) -> (agent, state): the plug-in's initial state; it may also set the
+    starting SACState (e.g. another policy's parameters). Called once per seed, after the SAC init;
+    ``seed_index``: the seed's place in the run's seeds (0..S-1; the same in every grid point).
   update(state, transitions, env_steps, key) -> (state, metrics): once per training step, after the
     new transitions were collected (metrics are averaged over the chunk).
   reward(state, batch) -> rewards: recomputes a sampled batch's rewards before the critic target.
   regularizer(state, policy_params, obs) -> scalar: added to the actor loss, times ``schedule``
-    (``regularizer(state, policy_params, obs, obs_norm)`` with an observation normaliser).
-  schedule(env_steps) -> weight of the regulariser (default 1).
-  transition_extras(env_state, next_env_state) -> pytree stored with each transition.
+    (``regularizer(state, policy_params, obs, obs_norm)`` with an observation normaliser); logged
+    as ``<name>`` and its weight as ``<name>_weight``.
+  schedule(env_steps) -> weight of this plug-in's regulariser (default 1).
+  transition_extras(env_state, next_env_state) -> pytree stored with each transition; ``update`` and
+    ``reward`` see these as ``transitions.extras`` / ``batch.extras`` (and no other plug-in's).
   hyper: {name: default} of the plug-in's vmappable scalars (names unique across plug-ins and
     SWEEPABLE), passed as ``**values`` to update, reward, regularizer and schedule (module docstring).
   """
 
   name: str
-  init: Callable[[jax.Array, Any], tuple[Any, State]] | None = None
+  init: Callable[[jax.Array, Any, Any], tuple[Any, State]] | None = None
   update: Callable[[State, Any, jax.Array, jax.Array], tuple[State, dict]] | None = None
   reward: Callable[[State, Any], jax.Array] | None = None
   regularizer: Callable[[State, Any, jax.Array], jax.Array] | None = None
@@ -59,10 +64,10 @@ def check(plugins: Sequence[Plugin]) -> tuple[Plugin, ...]:
   names = [p.name for p in plugins]
   if len(set(names)) != len(names):
     raise ValueError(f"plugins {names}: each plug-in needs its own name")
-  for hook in ("regularizer", "transition_extras"):
-    users = [p.name for p in plugins if getattr(p, hook) is not None]
-    if len(users) > 1:
-      raise ValueError(f"plugins {users} each define {hook}; at most one plug-in may (combine them into one)")
+  for p in plugins:
+    if p.schedule is not None and p.regularizer is None:
+      raise ValueError(f"plug-in {p.name!r} has a schedule but no regularizer: a schedule weights its own "
+                       f"plug-in's regularizer")
   return plugins
 
 

@@ -11,14 +11,12 @@ regress on ``r + gamma * V'(s')`` from a target state-value net, V regresses on
 minimum), only V has a target network, and all losses are taken at the parameters before the update
 (one ``sess.run`` in SB2).
 
-Two optional plug-ins, both no-ops by default:
+Two optional hooks, both no-ops by default (:mod:`hdt.agents.train` builds them from its plug-ins):
 
-* ``actor_regularizer(policy_params, obs) -> scalar`` is added to the actor loss (times a scale the
-  training loop may anneal; with an observation normaliser it is called as
-  ``actor_regularizer(policy_params, obs, obs_norm)``), e.g. ``beta * KL(pi || pi_ref)`` to a frozen
-  reference policy. It is logged as ``<metric_name>`` and its scale as ``<metric_name>_weight``, where ``metric_name`` is
-  the function's attribute of that name ("kl" for :func:`hdt.agents.kl.make_kl_regularizer`;
-  default "regularizer").
+* ``actor_regularizer(policy_params, obs) -> (term, metrics)``: ``term`` is added to the actor loss
+  (with an observation normaliser it is called as ``actor_regularizer(policy_params, obs, obs_norm)``),
+  e.g. ``w * KL(pi || pi_ref)`` to a frozen reference policy; ``metrics`` (a dict of scalars, e.g.
+  each term and its weight) are logged with the update's.
 * ``reward_fn(aux_state, batch) -> rewards`` recomputes the rewards of a sampled batch before the
   critic target is formed, e.g. a discriminator bonus whose state lives in ``aux_state``.
 """
@@ -40,7 +38,7 @@ from hdt.agents import normalizer
 from hdt.agents.replay import Transition
 
 Params = Any
-ActorRegularizer = Callable[[Params, jax.Array], jax.Array]
+ActorRegularizer = Callable[[Params, jax.Array], tuple[jax.Array, dict]]  # -> (loss term, metrics)
 RewardFn = Callable[[Any, Transition], jax.Array]
 
 
@@ -231,9 +229,10 @@ def make_losses(
       0.5 * sum_i mean_b (Q_i(s, a) - y)^2 with
       y = reward_scale * r + discount * gamma * (min_i Q'_i(s', a') - alpha * log pi(a'|s')),
       a' = tanh(loc(s') + scale(s') * eps), y under stop_gradient.
-  actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0, obs_norm=None)
-      mean_b (alpha * log pi(a|s) - min_i Q_i(s, a)) + reg_scale * actor_regularizer(params, obs),
-      a = tanh(loc(s) + scale(s) * eps). aux["log_prob"] is the per-sample log-prob (for alpha_loss).
+  actor_loss(policy_params, q_params, log_alpha, obs, eps, obs_norm=None)
+      mean_b (alpha * log pi(a|s) - min_i Q_i(s, a)) + term, (term, aux["regularizer"]) =
+      actor_regularizer(params, obs) (0 and {} without one), a = tanh(loc(s) + scale(s) * eps).
+      aux["log_prob"] is the per-sample log-prob (for alpha_loss).
   alpha_loss(log_alpha, log_prob)
       -mean_b log_alpha * stop_gradient(log_prob + target_entropy)   (as in SB2 / softlearning)
 
@@ -281,20 +280,19 @@ def make_losses(
     q = q_apply(q_params, batch.obs, batch.action, obs_norm)
     return q_regression(q, target), {"q": jnp.mean(q), "target_q": jnp.mean(target)}
 
-  def actor_loss(policy_params, q_params, log_alpha, obs, eps, reg_scale=1.0, obs_norm=None):
+  def actor_loss(policy_params, q_params, log_alpha, obs, eps, obs_norm=None):
     alpha = jnp.exp(log_alpha)
     loc, scale = policy_apply(policy_params, obs, obs_norm)
     action, log_prob = nets.sample_from_noise(loc, scale, eps)
     q = q_apply(q_params, obs, action, obs_norm)
     q = q[..., 0] if networks.value_net else jnp.min(q, axis=-1)  # SB2's actor maximises Q_1
     loss = jnp.mean(alpha * log_prob - q)
+    reg_metrics = {}
     if actor_regularizer is not None:
       # the statistics only when there are some: regularisers of raw-observation runs take two arguments
-      reg = actor_regularizer(policy_params, obs, *(() if obs_norm is None else (obs_norm,)))
-      loss = loss + reg_scale * reg
-    else:
-      reg = jnp.zeros((), loss.dtype)
-    return loss, {"log_prob": log_prob, "regularizer": reg}
+      term, reg_metrics = actor_regularizer(policy_params, obs, *(() if obs_norm is None else (obs_norm,)))
+      loss = loss + term
+    return loss, {"log_prob": log_prob, "regularizer": reg_metrics}
 
   def alpha_loss(log_alpha, log_prob):
     return -jnp.mean(log_alpha * jax.lax.stop_gradient(log_prob + target_entropy))
@@ -391,7 +389,7 @@ def make_update(
     actor_regularizer: ActorRegularizer | None = None,
     reward_fn: RewardFn | None = None,
 ):
-  """Returns ``update(state, batch, noise, aux_state=None, reg_scale=1.0, hyper=None) -> (state, metrics)``.
+  """Returns ``update(state, batch, noise, aux_state=None, hyper=None) -> (state, metrics)``.
 
   ``noise``: standard-normal array of shape ``(2, batch, action_size)``, the reparameterisation
   noise of the critic target's next action (``noise[0]``) and of the actor loss (``noise[1]``),
@@ -404,9 +402,7 @@ def make_update(
   actor's log-probs), then the soft target update. With ``networks.value_net`` (SB2) the actor's loss
   is taken at the critics before their step, and the critic loss's V target uses the actor's noise.
   """
-  reg_name = getattr(actor_regularizer, "metric_name", "regularizer")
-
-  def update(state: SACState, batch: Transition, noise, aux_state=None, reg_scale=1.0, hyper=None):
+  def update(state: SACState, batch: Transition, noise, aux_state=None, hyper=None):
     h = hyperparams(config, hyper)
     target_entropy = h["target_entropy"]
     if target_entropy is None:
@@ -432,7 +428,7 @@ def make_update(
 
     (a_loss, a_aux), g = actor_grad(
         state.policy_params, state.q_params if networks.value_net else q_params, state.log_alpha,
-        batch.obs, eps_actor, reg_scale, state.obs_norm
+        batch.obs, eps_actor, state.obs_norm
     )
     upd, policy_opt_state = pi_opt.update(g, state.policy_opt_state, state.policy_params)
     policy_params = optax.apply_updates(state.policy_params, upd)
@@ -461,10 +457,8 @@ def make_update(
         "entropy": -jnp.mean(a_aux["log_prob"]),
         "q": c_aux["q"],
         "target_q": c_aux["target_q"],
-        reg_name: a_aux["regularizer"],
-        f"{reg_name}_weight": jnp.asarray(reg_scale, jnp.float32),
         "batch_reward": jnp.mean(batch.reward),
-    } | ({"v": c_aux["v"]} if networks.value_net else {})
+    } | ({"v": c_aux["v"]} if networks.value_net else {}) | a_aux["regularizer"]
     return new_state, metrics
 
   return update

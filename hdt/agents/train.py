@@ -5,7 +5,7 @@
 
     trainer = make_train(env, SACConfig(total_env_steps=20_000))
     keys = seed_keys(range(4))
-    ts = jax.jit(jax.vmap(trainer.init))(keys)
+    ts = jax.jit(jax.vmap(trainer.init))(keys, seed_indices(4))
     ts, metrics = jax.jit(jax.vmap(trainer.run_chunk), donate_argnums=0)(ts)
     ev = jax.jit(jax.vmap(trainer.evaluate))(ts.agent.policy_params, eval_keys, ts.agent.obs_norm)
     ts, out = jax.jit(jax.vmap(trainer.train))(keys)           # everything in one call
@@ -65,7 +65,7 @@ class TrainState:
 
 
 class Trainer(NamedTuple):
-  init: Callable[[jax.Array], TrainState]
+  init: Callable[[jax.Array, Any], TrainState]  # (seed key, seed index=0)
   run_chunk: Callable[[TrainState], tuple[TrainState, dict]]
   evaluate: Callable[[Any, jax.Array], dict]
   train: Callable[[jax.Array], tuple[TrainState, dict]]
@@ -78,11 +78,6 @@ def plugin_key(key: jax.Array, index: int) -> jax.Array:
   """The key plug-in ``index`` gets from a plug-in key of make_train (the first plug-in gets it
   unchanged, so a run with one plug-in draws what it drew before plug-ins were lists)."""
   return key if index == 0 else jax.random.fold_in(key, index)
-
-
-def plugin_init_key(seed_key: jax.Array, index: int) -> jax.Array:
-  """The key ``Trainer.init(seed_key)`` gives plug-in ``index``'s init."""
-  return plugin_key(jax.random.split(seed_key, 4)[2], index)
 
 
 def saved_params(agent: SACState) -> dict:
@@ -184,8 +179,11 @@ def make_train(
 
   plugins: :class:`hdt.agents.plugins.Plugin` objects (init, update, reward, regularizer, schedule,
     transition_extras; each optional), folded over in order. Their per-seed states are merged into
-    ``TrainState.aux``. Plug-in ``i`` gets the key :func:`plugin_key` ``(seed key, i)`` at init and a
-    per-step key derived the same way. Their declared ``hyper`` names join ``Trainer.sweepable``.
+    ``TrainState.aux``. Plug-in ``i`` gets the key :func:`plugin_key` ``(seed key, i)`` and the seed's
+    index at init and a per-step key derived the same way. Every regulariser is added to the actor
+    loss times its own schedule, logged as ``<name>`` and ``<name>_weight``; every plug-in's
+    transition extras are stored under its name and handed back to it alone. Their declared
+    ``hyper`` names join ``Trainer.sweepable``.
   networks: the SAC networks (default :func:`make_networks`).
   """
   obs_size, act_size = int(env.observation_size), int(env.action_size)
@@ -197,8 +195,12 @@ def make_train(
   deterministic_policy = lambda obs_norm: lambda params, obs: nets.deterministic_action(
       networks.policy_apply(params, obs, obs_norm)[0])
   spec = replay_lib.make_transition_spec(obs_size, act_size)
-  extras_fn = next((p.transition_extras for p in plugins if p.transition_extras), None)
-  if extras_fn is not None:
+  extending = [p for p in plugins if p.transition_extras is not None]
+
+  def extras_fn(state, next_state):  # {plug-in name: its extras of one transition}
+    return {p.name: p.transition_extras(state, next_state) for p in extending}
+
+  if extending:
     one = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
     spec = spec.replace(extras=jax.tree_util.tree_map(
         lambda s: np.zeros(s.shape, s.dtype), jax.eval_shape(extras_fn, one, one)))
@@ -209,7 +211,7 @@ def make_train(
                                                        jax.random.PRNGKey(0)))
   owned = []
   for p in plugins:
-    state = {} if p.init is None else jax.eval_shape(lambda k, a: p.init(k, a)[1], jax.random.PRNGKey(0),
+    state = {} if p.init is None else jax.eval_shape(lambda k, a: p.init(k, a, 0)[1], jax.random.PRNGKey(0),
                                                      agent_shape())
     if not isinstance(state, dict):
       raise TypeError(f"plug-in {p.name!r}: its initial state must be a dict (its keys in TrainState.aux), "
@@ -220,38 +222,40 @@ def make_train(
       raise ValueError(f"plug-in {p.name!r} uses TrainState.aux keys {taken} that another plug-in owns")
     owned.append(keys)
   regularizing = [(p, keys) for p, keys in zip(plugins, owned) if p.regularizer is not None]
-  reg_plugin = regularizing[0] if regularizing else None
-  sched_plugin = next((p for p in plugins if p.schedule is not None), None)
   rewarding = [(p, keys) for p, keys in zip(plugins, owned) if p.reward is not None]
   value = plugin_lib.values  # a plug-in's hyper values: hyper's (grid point) or its defaults
+  # what a plug-in sees of a transition's (or a batch's) extras: its own
+  seen = lambda p, tr: tr if not extending else tr.replace(extras=tr.extras.get(p.name))
 
-  def schedule(env_steps, hyper):
-    if sched_plugin is None:
-      return jnp.ones((), jnp.float32)
-    return sched_plugin.schedule(env_steps, **value(sched_plugin, hyper))
+  def weights(env_steps, hyper) -> dict:
+    """Each regulariser's weight at ``env_steps``: its own schedule's, 1 without one."""
+    return {p.name: jnp.ones((), jnp.float32) if p.schedule is None else
+            jnp.asarray(p.schedule(env_steps, **value(p, hyper)), jnp.float32) for p, _ in regularizing}
 
   def plugin_reward(aux, batch, hyper):
     for p, keys in rewarding:
-      r = p.reward(plugin_lib.own(aux, keys), batch, **value(p, hyper))
+      r = p.reward(plugin_lib.own(aux, keys), seen(p, batch), **value(p, hyper))
       batch = batch.replace(reward=r.astype(batch.reward.dtype))
     return batch.reward
 
-  def make_update_with(aux, hyper):
-    """One gradient update whose actor regulariser sees the plug-in's state (per seed)."""
+  def make_update_with(aux, reg_weights, hyper):
+    """One gradient update whose actor regularisers see their plug-ins' states (per seed), each times
+    its weight; logged as ``<name>`` and ``<name>_weight``."""
     reg = None
-    if reg_plugin is not None:
-      p, keys = reg_plugin
+    if regularizing:
       def reg(params, obs, *obs_norm):  # obs_norm: only with a normaliser (hdt.agents.sac)
-        return p.regularizer(plugin_lib.own(aux, keys), params, obs, *obs_norm, **value(p, hyper))
-      reg.metric_name = p.name if p.name == "kl" else "regularizer"  # logged as kl / kl_weight
+        terms = {p.name: p.regularizer(plugin_lib.own(aux, keys), params, obs, *obs_norm, **value(p, hyper))
+                 for p, keys in regularizing}
+        total = sum(reg_weights[name] * term for name, term in terms.items())
+        return total, terms | {f"{name}_weight": w for name, w in reg_weights.items()}
     return make_update(networks, config, act_size, actor_regularizer=reg,
                        reward_fn=(lambda aux, batch: plugin_reward(aux, batch, hyper)) if rewarding else None)
 
-  def plugins_init(key, agent):
+  def plugins_init(key, agent, seed_index):
     aux = {}
     for i, p in enumerate(plugins):
       if p.init is not None:
-        agent, state = p.init(plugin_key(key, i), agent)
+        agent, state = p.init(plugin_key(key, i), agent, seed_index)
         aux.update(state)
     return agent, aux
 
@@ -259,16 +263,18 @@ def make_train(
     aux, metrics = dict(aux), {}
     for i, (p, keys) in enumerate(zip(plugins, owned)):
       if p.update is not None:
-        state, m = p.update(plugin_lib.own(aux, keys), transitions, env_steps, plugin_key(key, i),
+        state, m = p.update(plugin_lib.own(aux, keys), seen(p, transitions), env_steps, plugin_key(key, i),
                             **value(p, hyper))
         aux.update(state)
         metrics.update(m)
     return aux, metrics
 
   # ---------------------------------------------------------------------------------------------
-  def init(key: jax.Array) -> TrainState:
+  def init(key: jax.Array, seed_index=0) -> TrainState:
+    """The TrainState of the seed whose key is ``key``; ``seed_index``: its place in the run's seeds
+    (as plug-ins see it: e.g. which of another run's seeds it starts from)."""
     k_agent, k_env, k_aux, k_next = jax.random.split(key, 4)
-    agent, aux = plugins_init(k_aux, init_sac_state(networks, config, k_agent))
+    agent, aux = plugins_init(k_aux, init_sac_state(networks, config, k_agent), seed_index)
     return TrainState(
         agent=agent,
         replay=replay_lib.init(config.buffer_size, spec),
@@ -295,13 +301,13 @@ def make_train(
     noise = _normal_from_bits(bits[:, batch_size:]).reshape(G, 2, batch_size, A)
     return batches, noise
 
-  def gradient_updates(agent: SACState, batches, noise, aux, reg_scale, hyper):
-    update = make_update_with(aux, hyper)
+  def gradient_updates(agent: SACState, batches, noise, aux, reg_weights, hyper):
+    update = make_update_with(aux, reg_weights, hyper)
     sac_hyper = None if hyper is None else {k: v for k, v in hyper.items() if k in SWEEPABLE}
 
     def one(agent, xs):
       batch, eps = xs
-      return update(agent, batch, eps, aux, reg_scale, sac_hyper)
+      return update(agent, batch, eps, aux, sac_hyper)
 
     agent, m = jax.lax.scan(one, agent, (batches, noise))
     return agent, jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), m)
@@ -325,7 +331,7 @@ def make_train(
     transitions = Transition(
         obs=f32(obs), action=f32(action), reward=f32(nxt.reward), next_obs=f32(nxt.next_obs),
         discount=f32(nxt.discount) if config.bootstrap_time_limits else 1.0 - f32(nxt.done),
-        extras=None if extras_fn is None else jax.vmap(extras_fn)(ts.env_state, nxt),
+        extras=jax.vmap(extras_fn)(ts.env_state, nxt) if extending else None,
     )
     env_steps = ts.env_steps + n_envs
     aux, aux_metrics = plugins_update(ts.aux, transitions, env_steps, k_aux, hyper)
@@ -335,9 +341,8 @@ def make_train(
     # every step (O(capacity) per step instead of O(num_envs)); see also replay._take_rows.
     replay = replay_lib.insert(ts.replay, transitions)
     batches, noise = sample_batches(replay, upd_bits)
-    reg_scale = schedule(env_steps, hyper)
     learn = env_steps >= config.learning_starts
-    upd = lambda agent: gradient_updates(agent, batches, noise, aux, reg_scale, hyper)
+    upd = lambda agent: gradient_updates(agent, batches, noise, aux, weights(env_steps, hyper), hyper)
     _, metrics_shape = jax.eval_shape(upd, ts.agent)
     skip = lambda agent: (
         agent, jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), metrics_shape)
@@ -470,13 +475,19 @@ def seed_keys(seeds: Sequence[int]) -> np.ndarray:
   return np.stack([np.asarray(jax.random.PRNGKey(s)) for s in seeds])
 
 
+def seed_indices(num_seeds: int, points: int = 1) -> np.ndarray:
+  """Each run's seed index (its place in the seeds) for :attr:`VmappedFns.init`: ``0..S-1`` per grid
+  point, point-major as :func:`run` lays the runs out."""
+  return np.tile(np.arange(num_seeds, dtype=np.int32), points)
+
+
 def eval_key(seed_key: jax.Array, index: int) -> jax.Array:
   """The key of :func:`run`'s ``index``-th evaluation (0 = before the first chunk, c = after chunk c)."""
   return jax.random.fold_in(jax.random.fold_in(seed_key, 0x5EED), index)
 
 
 class VmappedFns(NamedTuple):
-  init: Callable  # (keys[S]) -> TrainState[S]
+  init: Callable  # (keys[S], seed indices[S]) -> TrainState[S]
   run_chunk: Callable  # TrainState[S] (, hyper[S]) -> (TrainState[S], metrics[S]); donates the state
   evaluate: Callable  # (policy_params[S], keys[S], obs_norm[S] or None) -> metrics[S]
   eval_keys: Callable  # (seed keys[S], int32 index) -> keys[S] of that evaluation (eval_key)
@@ -500,7 +511,7 @@ def vmapped(trainer: Trainer, num_seeds: int = 1, hyper: bool = False) -> Vmappe
   over = lambda fn, n=1: sharding_lib.over_seeds(jax.vmap(fn), mesh, n)
   chunk = (lambda ts, h: trainer.run_chunk(ts, h)) if hyper else (lambda ts: trainer.run_chunk(ts))
   return VmappedFns(
-      init=jax.jit(over(trainer.init), compiler_options=RUN_ONCE),
+      init=jax.jit(over(trainer.init, 2), compiler_options=RUN_ONCE),
       run_chunk=jax.jit(over(chunk, 2 if hyper else 1), donate_argnums=0),
       evaluate=jax.jit(over(trainer.evaluate, 3)),
       eval_keys=jax.jit(jax.vmap(eval_key, in_axes=(0, None)), compiler_options=RUN_ONCE),
@@ -533,11 +544,12 @@ def _ahead_of_time(fns: VmappedFns, key: str, keys: jax.Array, hyper: dict | Non
   """``fns`` as programs loaded from (or compiled into) :func:`hdt.cache.compiled` under ``key``;
   abstract arguments are only traced when nothing was saved yet."""
   keys_a = jax.ShapeDtypeStruct(keys.shape, keys.dtype)
-  ts_a = lambda: jax.eval_shape(fns.init, keys_a)
+  index_a = jax.ShapeDtypeStruct(keys.shape[:1], jnp.int32)
+  ts_a = lambda: jax.eval_shape(fns.init, keys_a, index_a)
   hyper_a = () if hyper is None else ({k: jax.ShapeDtypeStruct(keys.shape[:1], jnp.float32) for k in hyper},)
   chunk = cache.compiled(fns.run_chunk, key + "|run_chunk", lambda: (ts_a(), *hyper_a))
   return VmappedFns(
-      init=cache.compiled(fns.init, key + "|init", lambda: (keys_a,)),
+      init=cache.compiled(fns.init, key + "|init", lambda: (keys_a, index_a)),
       run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
       evaluate=cache.compiled(fns.evaluate, key + "|evaluate",
                               lambda: (ts_a().agent.policy_params, keys_a, ts_a().agent.obs_norm)),
@@ -639,7 +651,7 @@ def run(
   if cache_key is not None and sharding is None:
     fns = _ahead_of_time(fns, f"{cache_key}|runs={n_runs}|hyper={sorted(hyper or {})}", keys, hyper)
   if initial_state is None:
-    ts = fns.init(keys)
+    ts = fns.init(keys, sharding_lib.shard(seed_indices(len(seeds), len(points)), sharding))
   else:
     ts = sharding_lib.shard(initial_state, sharding)
     if np.shape(ts.env_steps) != (n_runs,):

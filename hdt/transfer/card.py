@@ -142,8 +142,9 @@ class AlignedTo(Record):
 @dataclasses.dataclass(frozen=True)
 class FinetunedFrom(Record):
   """The HL a finetuned HL started from (``hdt.transfer.finetune``): A's run, agent, task and
-  parameters, its hash and seeds, which of A's seeds started each seed, and the KL reference (seed,
-  parameters and their env steps; None without a KL term)."""
+  parameters, its hash and its number of seeds (the seed of index i started from A's seed i % seeds;
+  runs before that rule list ``init_seed_indices``), and the KL reference (seed, parameters and their
+  env steps; None without a KL term)."""
 
   path: str
   agent: str | None = None

@@ -19,7 +19,7 @@ learning_starts=None`` restores hdt's earlier start: A's policy only, fresh crit
 HLs saved before ``target_q`` / ``log_alpha`` were kept fall back (with a warning) to A's critics as
 targets and alpha = ``config.init_alpha``.
 
-Seeds: HL seed ``i`` starts from A's HL seed ``i % n_A`` (its final parameters, as the script's
+Seeds: the HL seed of index ``i`` starts from A's HL seed ``i % n_A`` (its final parameters, as the script's
 ``load(args.high, ..., best=False)``). The frozen KL reference is A's seed ``reference_seed``
 (default 0) for every seed, by default its best evaluation's parameters (KLSAC ``setup_model``:
 ``load_from_name(kl_policy, best=True)``; final when the run kept no best), kept per seed in the training state
@@ -101,21 +101,20 @@ def start_from_a(agent, a_params, config, high, init: str = "sac"):
                        alpha_opt_state=a_opt.init(log_alpha))
 
 
-def start_plugin(a_params, pick, seed_list, config, high, init: str = "sac") -> Plugin:
-  """A plug-in whose init starts seed ``seed_list[i]`` from A's seed ``pick[i]`` (:func:`start_from_a`).
-  Its init finds its seed by the key make_train hands it (:func:`sac_train.plugin_init_key`)."""
+def start_plugin(a_params, config, high, init: str = "sac") -> Plugin:
+  """A plug-in whose init starts the seed of index ``i`` from A's seed ``i % n_A`` (:func:`start_from_a`;
+  ``a_params``: A's parameters stacked over its n_A seeds)."""
   missing = [k for k in ("target_q", "log_alpha") if k not in a_params]
   if init == "sac" and missing:
     print(f"warning: {high} has no saved {' or '.join(missing)} (an HL saved before they were kept): "
           f"finetuning starts from A's critics as targets and alpha={config.init_alpha}", file=sys.stderr)
   wanted = ("policy", ckpt.NORM) if init == "policy" else ("policy", "q", "target_q", "log_alpha", ckpt.NORM)
-  per_seed = {k: jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[pick], jnp.float32), a_params[k])
-              for k in wanted if k in a_params}
-  keys = jax.vmap(lambda k: sac_train.plugin_init_key(k, 0))(sac_train.seed_keys(seed_list))
+  per_seed = {k: jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), a_params[k]) for k in wanted if k in a_params}
+  n_a = jax.tree.leaves(per_seed["policy"])[0].shape[0]
 
-  def init_fn(key, agent):
-    i = jnp.argmax(jnp.all(keys == key, axis=-1))
-    return start_from_a(agent, jax.tree.map(lambda x: x[i], per_seed), config, high, init), {}
+  def init_fn(key, agent, seed_index):
+    a = jax.tree.map(lambda x: x[seed_index % n_a], per_seed)
+    return start_from_a(agent, a, config, high, init), {}
 
   return Plugin(name="start_from_a", init=init_fn)
 
@@ -194,13 +193,13 @@ def finetune_high(high: str | Path, low: LowRef | str | Path, task: str, config:
   backend: the physics backend; options: how it runs (:class:`hdt.transfer.runner.RunOptions`; a
     resumed run restarts from its saved state, not from A's HL).
   """
-  return run_stage(finetune_stage(high, low, task, config, spec, options.seeds, backend, **task_overrides), options)
+  return run_stage(finetune_stage(high, low, task, config, spec, backend, **task_overrides), options)
 
 
 def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config: SACConfig | None = None,
-                   spec: FinetuneSpec = FinetuneSpec(), seeds=1, backend: str = "auto", **task_overrides) -> Stage:
-  """The stage of :func:`finetune_high`: B's HL env, the start-from-A and KL plug-ins (``seeds``: the
-  seeds they start, as they will be trained), and a card that records A."""
+                   spec: FinetuneSpec = FinetuneSpec(), backend: str = "auto", **task_overrides) -> Stage:
+  """The stage of :func:`finetune_high`: B's HL env, the start-from-A and KL plug-ins, and a card that
+  records A."""
   configs.check_config(config, allow_none=True)
   if not isinstance(spec, FinetuneSpec):
     raise ValueError(f"spec={spec!r}: pass a hdt.transfer.finetune.FinetuneSpec")
@@ -235,14 +234,11 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
   if spec.learning_starts is not None:
     config = dataclasses.replace(config, learning_starts=int(spec.learning_starts))
 
-  seed_list = sac_train.seed_list(seeds)
-  n = len(seed_list)
   anneal_steps = spec.anneal_frac * config.total_env_steps
 
   # Plug-ins of one trainer: every seed starts from A's SAC (or policy), with fresh optimiser states
   # and replay, and (kl > 0) keeps its own copy of the KL reference.
-  pick = np.arange(n) % n_a
-  plugins = [start_plugin(a_params, pick, seed_list, config, high, spec.init)]
+  plugins = [start_plugin(a_params, config, high, spec.init)]
   if kl_weight > 0:
     reference = jax.tree.map(lambda x: x[reference_seed], ref_params["policy"])
     reference_norm = jax.tree.map(lambda x: x[reference_seed], ref_params.get(ckpt.NORM))
@@ -252,7 +248,7 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
 
   kl_tied = kl_weight > 0
   finetuned_from = FinetunedFrom(high, agent=card_a.agent, task=card_a.task, params=ckpt.params_label(a_metas),
-                                 sha256=ckpt.content_hash(high), seeds=n_a, init_seed_indices=tuple(pick.tolist()),
+                                 sha256=ckpt.content_hash(high), seeds=n_a,
                                  reference_seed=reference_seed,
                                  reference_params=ref_meta.get("params", "final") if kl_tied else None,
                                  reference_params_env_steps=ref_meta.get("params_env_steps") if kl_tied else None)

@@ -359,8 +359,9 @@ def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
 
 def _resume(source: Path, trainer, info: dict):
   """The saved TrainState (device arrays), history and best record of ``source``."""
-  template = jax.eval_shape(sac_train.vmapped(trainer).init,
-                            sac_train.seed_keys(info["seeds"]))
+  seeds = info["seeds"]
+  template = jax.eval_shape(sac_train.vmapped(trainer).init, sac_train.seed_keys(seeds),
+                            sac_train.seed_indices(len(seeds)))
   # a state saved before best-of-evaluation selection has no best record: it restarts empty
   best_template = sac_train.empty_best(sac_train.saved_params(template.agent))
   best_template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype), best_template)

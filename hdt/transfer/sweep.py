@@ -28,7 +28,7 @@ def sweep(level: str, runs: list[tuple], *, backend: str = "auto", options: RunO
   batch sizes, num_envs, ...) in turn. Every run directory is written as by train_* (its meta.json
   records its weights). Returns the results in the order of ``runs``."""
   setup = {"low": low_stage, "high": high_stage, "full": full_stage, "align": align_stage,
-           "finetune": lambda **kw: finetune_stage(seeds=options.seeds, **kw)}.get(level)
+           "finetune": finetune_stage}.get(level)
   if setup is None:
     raise ValueError(f"level={level!r}: sweep trains 'low', 'high', 'full', 'finetune' or 'align'")
   runs = [(r[0], r[1], dict(r[2]) if len(r) > 2 else {}) for r in runs]
