@@ -17,6 +17,7 @@
 #include <memory>
 #include <cstdint>
 #include <mutex>
+#include <utility>
 #include <unordered_map>
 #include <vector>
 
@@ -129,13 +130,48 @@ void ParallelFor(Entry* e, int64_t n, ffi::ThreadPool* pool, Fn fn) {
   job->cv.wait(lock, [&] { return job->done.load() == job->nchunk; });
 }
 
-ffi::Error CheckSizes(const mjModel* m, size_t n, size_t nq, size_t nv, size_t na, size_t ns,
-                      size_t nc, bool cfrc) {
-  if (nq != n * m->nq || nv != n * m->nv || na != n * m->na || ns != n * m->nsensordata ||
-      nc != (cfrc ? n * 6 * m->nbody : 0)) {
+// One call's state buffers as raw pointers, checked against the registered model (step and forward).
+struct Batch {
+  Entry* e = nullptr;
+  const mjModel* m = nullptr;
+  int64_t n = 0, nc = 0;  // envs; cfrc_ext numbers per env (0 when not asked)
+  const float *t_in = nullptr, *qp = nullptr, *qv = nullptr, *ac = nullptr;
+  float *t_out = nullptr, *qp_out = nullptr, *qv_out = nullptr, *a_out = nullptr, *s_out = nullptr,
+        *c_out = nullptr;
+};
+
+ffi::Error Open(int64_t model_id, bool cfrc, ffi::Buffer<ffi::F32>& time, ffi::Buffer<ffi::F32>& qpos,
+                ffi::Buffer<ffi::F32>& qvel, ffi::Buffer<ffi::F32>& act, ffi::ResultBuffer<ffi::F32>& time_out,
+                ffi::ResultBuffer<ffi::F32>& qpos_out, ffi::ResultBuffer<ffi::F32>& qvel_out,
+                ffi::ResultBuffer<ffi::F32>& act_out, ffi::ResultBuffer<ffi::F32>& sens_out,
+                ffi::ResultBuffer<ffi::F32>& cfrc_out, Batch* b) {
+  b->e = Find(model_id);
+  if (!b->e) return ffi::Error::InvalidArgument("hdt native physics: model not registered");
+  const mjModel* m = b->m = b->e->model;
+  size_t n = time.element_count();
+  b->n = static_cast<int64_t>(n);
+  b->nc = cfrc ? 6 * m->nbody : 0;
+  if (qpos.element_count() != n * m->nq || qvel.element_count() != n * m->nv ||
+      act.element_count() != n * m->na || sens_out->element_count() != n * m->nsensordata ||
+      cfrc_out->element_count() != n * b->nc) {
     return ffi::Error::InvalidArgument("hdt native physics: buffer sizes do not match the model");
   }
+  b->t_in = time.typed_data(), b->qp = qpos.typed_data(), b->qv = qvel.typed_data(), b->ac = act.typed_data();
+  b->t_out = time_out->typed_data(), b->qp_out = qpos_out->typed_data(), b->qv_out = qvel_out->typed_data();
+  b->a_out = act_out->typed_data(), b->s_out = sens_out->typed_data(), b->c_out = cfrc_out->typed_data();
   return ffi::Error::Success();
+}
+
+// The state of env ``i`` of ``b`` into ``d``, and back from it into the outputs.
+void Load(const Batch& b, mjData* d, int64_t i) {
+  const mjModel* m = b.m;
+  SetState(m, d, b.t_in[i], b.qp + i * m->nq, b.qv + i * m->nv, b.ac + i * m->na);
+}
+
+void Store(const Batch& b, mjData* d, int64_t i) {
+  const mjModel* m = b.m;
+  GetState(m, d, b.nc != 0, b.t_out + i, b.qp_out + i * m->nq, b.qv_out + i * m->nv, b.a_out + i * m->na,
+           b.s_out + i * m->nsensordata, b.c_out + i * b.nc);
 }
 
 ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip, int64_t cfrc,
@@ -145,26 +181,19 @@ ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip, 
                     ffi::ResultBuffer<ffi::F32> time_out, ffi::ResultBuffer<ffi::F32> qpos_out,
                     ffi::ResultBuffer<ffi::F32> qvel_out, ffi::ResultBuffer<ffi::F32> act_out,
                     ffi::ResultBuffer<ffi::F32> sens_out, ffi::ResultBuffer<ffi::F32> cfrc_out) {
-  Entry* e = Find(model_id);
-  if (!e) return ffi::Error::InvalidArgument("hdt native physics: model not registered");
-  const mjModel* m = e->model;
-  int64_t n = time.element_count();
-  ffi::Error err = CheckSizes(m, n, qpos.element_count(), qvel.element_count(),
-                              act.element_count(), sens_out->element_count(),
-                              cfrc_out->element_count(), cfrc != 0);
+  Batch b;
+  ffi::Error err = Open(model_id, cfrc != 0, time, qpos, qvel, act, time_out, qpos_out, qvel_out, act_out,
+                        sens_out, cfrc_out, &b);
   if (err.failure()) return err;
+  const mjModel* m = b.m;
+  const int64_t n = b.n;
   if (ctrl.element_count() != static_cast<size_t>(n * m->nu)) {
     return ffi::Error::InvalidArgument("hdt native physics: ctrl size does not match the model");
   }
   if (active.element_count() != static_cast<size_t>(n)) {
     return ffi::Error::InvalidArgument("hdt native physics: active mask size does not match the batch");
   }
-  const float *t_in = time.typed_data(), *qp = qpos.typed_data(), *qv = qvel.typed_data(),
-              *ac = act.typed_data(), *u = ctrl.typed_data(), *on = active.typed_data();
-  float *t_out = time_out->typed_data(), *qp_out = qpos_out->typed_data(),
-        *qv_out = qvel_out->typed_data(), *a_out = act_out->typed_data(),
-        *s_out = sens_out->typed_data(), *c_out = cfrc_out->typed_data();
-  const int64_t nc = cfrc ? 6 * m->nbody : 0;
+  const float *u = ctrl.typed_data(), *on = active.typed_data();
   // Inactive envs (an HL step's LL loop that already stopped) are passed through unstepped, with
   // zero sensors and forces; only the active ones are stepped, compacted so the threads share them
   // evenly.
@@ -175,21 +204,20 @@ ffi::Error StepImpl(ffi::ThreadPool pool, int64_t model_id, int64_t frame_skip, 
       rows.push_back(i);
       continue;
     }
-    t_out[i] = t_in[i];
-    std::copy(qp + i * m->nq, qp + (i + 1) * m->nq, qp_out + i * m->nq);
-    std::copy(qv + i * m->nv, qv + (i + 1) * m->nv, qv_out + i * m->nv);
-    std::copy(ac + i * m->na, ac + (i + 1) * m->na, a_out + i * m->na);
-    std::fill(s_out + i * m->nsensordata, s_out + (i + 1) * m->nsensordata, 0.0f);
-    std::fill(c_out + i * nc, c_out + (i + 1) * nc, 0.0f);
+    b.t_out[i] = b.t_in[i];
+    std::copy(b.qp + i * m->nq, b.qp + (i + 1) * m->nq, b.qp_out + i * m->nq);
+    std::copy(b.qv + i * m->nv, b.qv + (i + 1) * m->nv, b.qv_out + i * m->nv);
+    std::copy(b.ac + i * m->na, b.ac + (i + 1) * m->na, b.a_out + i * m->na);
+    std::fill(b.s_out + i * m->nsensordata, b.s_out + (i + 1) * m->nsensordata, 0.0f);
+    std::fill(b.c_out + i * b.nc, b.c_out + (i + 1) * b.nc, 0.0f);
   }
   if (rows.empty()) return ffi::Error::Success();
-  ParallelFor(e, static_cast<int64_t>(rows.size()), &pool, [&](mjData* d, int64_t j) {
+  ParallelFor(b.e, static_cast<int64_t>(rows.size()), &pool, [&](mjData* d, int64_t j) {
     int64_t i = rows[j];
-    SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv, ac + i * m->na);
+    Load(b, d, i);
     for (int k = 0; k < m->nu; k++) d->ctrl[k] = u[i * m->nu + k];
     for (int64_t s = 0; s < frame_skip && !Warned(d); s++) mj_step(m, d);
-    GetState(m, d, cfrc != 0, t_out + i, qp_out + i * m->nq, qv_out + i * m->nv,
-             a_out + i * m->na, s_out + i * m->nsensordata, c_out + i * nc);
+    Store(b, d, i);
   });
   return ffi::Error::Success();
 }
@@ -200,64 +228,46 @@ ffi::Error ForwardImpl(int64_t model_id, int64_t cfrc, ffi::Buffer<ffi::F32> tim
                        ffi::ResultBuffer<ffi::F32> qpos_out, ffi::ResultBuffer<ffi::F32> qvel_out,
                        ffi::ResultBuffer<ffi::F32> act_out, ffi::ResultBuffer<ffi::F32> sens_out,
                        ffi::ResultBuffer<ffi::F32> cfrc_out) {
-  Entry* e = Find(model_id);
-  if (!e) return ffi::Error::InvalidArgument("hdt native physics: model not registered");
-  const mjModel* m = e->model;
-  int64_t n = time.element_count();
-  ffi::Error err = CheckSizes(m, n, qpos.element_count(), qvel.element_count(),
-                              act.element_count(), sens_out->element_count(),
-                              cfrc_out->element_count(), cfrc != 0);
+  Batch b;
+  ffi::Error err = Open(model_id, cfrc != 0, time, qpos, qvel, act, time_out, qpos_out, qvel_out, act_out,
+                        sens_out, cfrc_out, &b);
   if (err.failure()) return err;
-  const float *t_in = time.typed_data(), *qp = qpos.typed_data(), *qv = qvel.typed_data(),
-              *ac = act.typed_data();
-  float *t_out = time_out->typed_data(), *qp_out = qpos_out->typed_data(),
-        *qv_out = qvel_out->typed_data(), *a_out = act_out->typed_data(),
-        *s_out = sens_out->typed_data(), *c_out = cfrc_out->typed_data();
-  const int64_t nc = cfrc ? 6 * m->nbody : 0;
-  ParallelFor(e, n, nullptr, [&](mjData* d, int64_t i) {
-    SetState(m, d, t_in[i], qp + i * m->nq, qv + i * m->nv, ac + i * m->na);
-    mju_zero(d->ctrl, m->nu);
-    GetState(m, d, cfrc != 0, t_out + i, qp_out + i * m->nq, qv_out + i * m->nv,
-             a_out + i * m->na, s_out + i * m->nsensordata, c_out + i * nc);
+  ParallelFor(b.e, b.n, nullptr, [&](mjData* d, int64_t i) {
+    Load(b, d, i);
+    mju_zero(d->ctrl, b.m->nu);
+    Store(b, d, i);
   });
   return ffi::Error::Success();
+}
+
+// Both handlers take the state before their call (time, qpos, qvel, act) and return it after it
+// (time, qpos, qvel, act, sensors, cfrc_ext).
+template <typename Binding>
+auto StateArgs(Binding binding) {
+  using In = ffi::Buffer<ffi::F32>;
+  return std::move(binding).template Arg<In>().template Arg<In>().template Arg<In>().template Arg<In>();
+}
+
+template <typename Binding>
+auto StateResults(Binding binding) {
+  using Out = ffi::Buffer<ffi::F32>;
+  return std::move(binding).template Ret<Out>().template Ret<Out>().template Ret<Out>().template Ret<Out>()
+      .template Ret<Out>().template Ret<Out>();
 }
 
 }  // namespace
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(HdtPhysicsStep, StepImpl,
-                              ffi::Ffi::Bind()
-                                  .Ctx<ffi::ThreadPool>()
-                                  .Attr<int64_t>("model_id")
-                                  .Attr<int64_t>("frame_skip")
-                                  .Attr<int64_t>("cfrc")  // 1: also return cfrc_ext
-                                  .Arg<ffi::Buffer<ffi::F32>>()  // time
-                                  .Arg<ffi::Buffer<ffi::F32>>()  // qpos
-                                  .Arg<ffi::Buffer<ffi::F32>>()  // qvel
-                                  .Arg<ffi::Buffer<ffi::F32>>()  // act
-                                  .Arg<ffi::Buffer<ffi::F32>>()  // ctrl
-                                  .Arg<ffi::Buffer<ffi::F32>>()  // active (1 = step, 0 = pass through)
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>());
+                              StateResults(StateArgs(ffi::Ffi::Bind()
+                                                         .Ctx<ffi::ThreadPool>()
+                                                         .Attr<int64_t>("model_id")
+                                                         .Attr<int64_t>("frame_skip")
+                                                         .Attr<int64_t>("cfrc"))  // 1: also return cfrc_ext
+                                               .Arg<ffi::Buffer<ffi::F32>>()  // ctrl
+                                               .Arg<ffi::Buffer<ffi::F32>>()));  // active (1 = step, 0 = pass through)
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(HdtPhysicsForward, ForwardImpl,
-                              ffi::Ffi::Bind()
-                                  .Attr<int64_t>("model_id")
-                                  .Attr<int64_t>("cfrc")
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>());
+                              StateResults(StateArgs(ffi::Ffi::Bind().Attr<int64_t>("model_id").Attr<int64_t>("cfrc"))));
 
 // Registers a model under its content hash. The caller keeps the MjModel alive for the process.
 // Returns 1 if newly registered, 0 if the id was already known.
