@@ -42,7 +42,7 @@ def test_fig5_writes_curves_png_and_results(tmp_path, monkeypatch):
 
 
 def test_bars_plots_matrix_cells_beside_the_paper(tmp_path):
-  from experiments import bars
+  from experiments.studies import bars
   m = tmp_path / "matrix_push1.json"
   m.write_text(json.dumps({"cells": {"plain|PM": [0.1, 0.02, "success"], "aligned|PM": [0.3, 0.1, "success"]}}))
   out = tmp_path / "t2"

@@ -7,7 +7,7 @@ class-balanced batches of real inputs (B: the 3Link LL's, A: the manipulation po
 own reach goals), for the updates of a 400k-step alignment (``DiscConfig`` defaults: one per 8 env steps
 until half the run, the authors' decaying lr), from the same init. Prints the largest differences.
 
-  python experiments/adam_eps.py [--low-b zoo:arm3/low_paper] [--low-a zoo:arm_point/low]
+  python experiments/studies/adam_eps.py [--low-b zoo:arm3/low_paper] [--low-a zoo:arm_point/low]
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 distance to the sub-goal when the HL step ends, how often it gets within the HL step's epsilon, how
 many LL steps an HL step takes, and how far the block moves (RESULTS.md, Table 1 notes).
 
-  PYTHONPATH=. python experiments/ll_tracking.py --high PM=zoo:arm_point/push1 \\
+  PYTHONPATH=. python experiments/studies/ll_tracking.py --high PM=zoo:arm_point/push1 \\
       --low 3Link400k=zoo:arm3/low --low 3Link1p2m=zoo:arm3/low_paper --task push1 --episodes 16
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script or loaded by path
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script or loaded by path
 from experiments import common as C  # noqa: E402
 
 

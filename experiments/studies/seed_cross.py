@@ -4,7 +4,7 @@
 HL seed h drives LL seed (h + s) mod n_LL for every shift s; shift 0 is exactly ``hdt eval``'s pairing
 and episodes (same keys). Writes a CSV (one row per HL seed, LL seed) and a heatmap per LL run.
 
-  PYTHONPATH=. python experiments/seed_cross.py --high zoo:arm2/push1_500k --task push1 --episodes 100 \\
+  PYTHONPATH=. python experiments/studies/seed_cross.py --high zoo:arm2/push1_500k --task push1 --episodes 100 \\
       --low plain=zoo:arm3/low --low online=runs/arm3_aligned_arm2_online --out experiments/results/NAME
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from experiments.common import write_csv_atomic  # noqa: E402
 from hdt import plots  # noqa: E402
 from hdt.transfer import checkpoint as ckpt  # noqa: E402

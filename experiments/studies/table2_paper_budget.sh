@@ -1,6 +1,6 @@
 # Table 2 (arm rows) at the paper-budget settings as grouped bars: RESULTS.md, "Appendix cells" (400k LL env steps). Extra bars as arguments.
 E=experiments/results/table2_evals
-PYTHONPATH=. python experiments/bars.py --out experiments/results/table2_paper_budget \
+PYTHONPATH=. python experiments/studies/bars.py --out experiments/results/table2_paper_budget \
   --title "Table 2 (arm rows): PM HL / 2Link HL zero-shot over the 3Link LL, 400k env steps (discriminator lr 2e-4, w0 0.3 unless named)" \
   "PM→3Link BP1|plain|0.17=$E/pm_arm3_push1_offline_llstart.json#plain|PM" \
   "PM→3Link BP1|aligned, offline (A restarts at LL start)|0.35=$E/pm_arm3_push1_offline_llstart.json#aligned|PM" \

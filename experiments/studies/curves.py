@@ -1,6 +1,6 @@
 """Learning curves of finished runs as PNG + CSV (mean over seeds, ±1 std band): for RESULTS.md.
 
-  PYTHONPATH=. python experiments/curves.py RUN [RUN ...] --metric success_max --out experiments/results/NAME
+  PYTHONPATH=. python experiments/studies/curves.py RUN [RUN ...] --metric success_max --out experiments/results/NAME
 
 A RUN is a run directory, ``label=RUN_DIR``, or ``label=FILE.csv#name``: the series ``name`` of a CSV this
 script wrote before (for a run whose directory is gone). ``--hline label=value`` draws a reference level.
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from experiments.common import write_csv_atomic  # noqa: E402
 from hdt import plots  # noqa: E402
 from hdt.report import read_eval_curves  # noqa: E402

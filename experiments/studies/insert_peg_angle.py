@@ -4,7 +4,7 @@ of the peg from vertical where it comes closest to the slot, per LL seed, over t
 The slot is 0.014 m wide (|x| < 0.007 between the capsule ends at y = -0.18) and the peg 0.01 m thick,
 so it fits only within about 24 degrees of vertical (0.01 / cos a < 0.014 - clearance).
 
-  python experiments/insert_peg_angle.py [LOW ...]   # default: the PM's and 3Link's zoo insert LLs"""
+  python experiments/studies/insert_peg_angle.py [LOW ...]   # default: the PM's and 3Link's zoo insert LLs"""
 
 import sys
 from pathlib import Path
@@ -14,8 +14,8 @@ import numpy as np
 from hdt import envs
 from hdt.transfer.hierarchy import HighLevelEnv
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 import scripted  # noqa: E402  (the scripted controllers of tests/test_fidelity.py)
 from experiments import common as C  # noqa: E402
 

@@ -1,6 +1,6 @@
 """Grouped bars of evaluated cells beside the paper's numbers (PNG + CSV), e.g. Table 2's plain vs aligned.
 
-  PYTHONPATH=. python experiments/bars.py --out experiments/results/NAME \\
+  PYTHONPATH=. python experiments/studies/bars.py --out experiments/results/NAME \\
       "GROUP|METHOD|PAPER=MATRIX.json#CELL" ...
 
 Each bar is one cell of a matrix JSON that ``hdt eval`` wrote (``CELL`` as in its ``cells``, e.g.
@@ -18,7 +18,7 @@ import json
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from experiments.common import write_csv_atomic  # noqa: E402
 from hdt import plots  # noqa: E402
 

@@ -2,7 +2,7 @@
 over a point-mass LL, for the authors' class defaults k = 15 (point mass) and 20 (ant, quadruped) and
 the paper's k = 32 (RESULTS.md, Waypoint).
 
-  python experiments/waypoint_k.py [--low zoo:point/low] [--k 15 20 32]
+  python experiments/studies/waypoint_k.py [--low zoo:point/low] [--k 15 20 32]
 """
 
 import argparse
