@@ -15,7 +15,8 @@ NEVER = {
     "hdt.agents": ("hdt.transfer", "hdt.cli", "hdt.report", "hdt.render"),
     "hdt.transfer": ("hdt.cli", "hdt.report", "hdt.render", "hdt.plots"),
 }
-LEAVES = ("hdt.version", "hdt.atomic", "hdt.interrupt", "hdt.transfer.names")  # import no other hdt module
+LEAVES = ("hdt.version", "hdt.atomic", "hdt.interrupt", "hdt.progress", "hdt.cache", "hdt.plots",
+          "hdt.transfer.names")  # import no hdt module but hdt.atomic
 
 
 def modules() -> dict[str, Path]:
