@@ -63,11 +63,10 @@ TASKS = {
                   sbx=dict(net_arch=[64, 64], learning_rate=3e-4, batch_size=64, buffer_size=200_000)),
     "arm3": dict(threshold=0.05, extra_thresholds=(0.1,), eval_every=2048, max_steps=401_408,
                  sbx=dict(net_arch=[128, 96], learning_rate=3e-4, batch_size=100, buffer_size=250_000)),
-    # The paper's 2.5M-step LL quality: the share of episodes whose torso gets within epsilon_low = 0.27 m
-    # (bot_transfer/envs/ant.py, Ant.__init__; the agent's reach radius) at some step, at the level hdt's
-    # own 2.5M-step LL reaches (zoo ant/low_2p5m: 0.99 of 100 episodes). Not a final distance: that LL
-    # ends 0.97 m from the goal on average, as the authors' LL episodes do not stop at the goal.
-    "ant": dict(metric="success", threshold=0.99, extra_thresholds=(0.9, 0.5), eval_every=8192,
+    # The paper's LL quality: the share of episodes whose torso gets within epsilon_low = 0.27 m
+    # (bot_transfer/envs/ant.py, Ant.__init__; the agent's reach radius) at some step, at least 0.95.
+    # Not a final distance: the authors' LL episodes do not stop at the goal.
+    "ant": dict(metric="success", threshold=0.95, extra_thresholds=(0.9, 0.5), eval_every=8192,
                 max_steps=2_506_752,  # 306 x 8192
                 sbx=dict(net_arch=[400, 300], learning_rate=8e-4, batch_size=100, buffer_size=1_000_000)),
 }
@@ -83,6 +82,13 @@ HDT_CONFIGS = {
     "e16_u4_b256": dict(num_envs=16, updates_per_step=4, batch_size=256),  # UTD 1/4
     "e16_u2_b256": dict(num_envs=16, updates_per_step=2, batch_size=256),  # UTD 1/8
     "e8_u8_b64_norm": dict(num_envs=8, updates_per_step=8, batch_size=64, normalize_observations=True),
+    # --preset paper: SB2's SAC (state-value net), the paper's batch, one update per env step
+    "paper": dict(num_envs=8, updates_per_step=8, value_net=True),
+    # sample-efficient options: LayerNorm critics at a higher learning rate, twin-min Q, time limits
+    # bootstrapped, a smaller network and a larger batch
+    "ln256_u1": dict(num_envs=8, updates_per_step=8, batch_size=128, hidden_sizes=(256, 256),
+                     critic_layer_norm=True, bootstrap_time_limits=True, actor_lr=1e-3, critic_lr=1e-3,
+                     alpha_lr=1e-3),
 }
 EVAL_KEY = 20260  # same evaluation episodes for every run
 VMAPPED = "_vmapped"  # suffix of a config's name when its seeds train as one vmapped program

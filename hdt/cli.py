@@ -447,7 +447,8 @@ def cmd_align(args) -> int:
 
 def _a_sac(a) -> dict:
   """A's network and SAC kind (``a``: A's HL card): a finetune starts from A's whole SAC."""
-  return dict(hidden_sizes=a.hidden_sizes, value_net=bool(a.sac.get("value_net", False)))
+  return dict(hidden_sizes=a.hidden_sizes, value_net=bool(a.sac.get("value_net", False)),
+              critic_layer_norm=bool(a.sac.get("critic_layer_norm", False)))
 
 
 def _finetune_spec(args):

@@ -228,6 +228,26 @@ def test_real_networks_shapes_and_bounds():
   k0 = qp["params"]["critics"]["hidden_0"]["kernel"]
   assert k0.shape == (2, 8, 16) and float(jnp.max(jnp.abs(k0))) <= np.sqrt(3 / 8)
   assert float(jnp.max(jnp.abs(pp["params"]["mlp"]["out"]["bias"]))) == 0.0
+  # the stacked twin critics' biases, shape (2, out), are biases too
+  for layer in ("hidden_0", "hidden_1", "out"):
+    assert float(jnp.max(jnp.abs(qp["params"]["critics"][layer]["bias"]))) == 0.0
+
+
+@pytest.mark.parametrize("value_net", [False, True])
+def test_layer_norm_critics_start_as_unit_gains_and_normalise(value_net):
+  n = nets.make_sac_networks(5, 3, (16, 8), critic_layer_norm=True, value_net=value_net)
+  qp = n.q_init(jax.random.PRNGKey(1))
+  q_params = qp["q"] if value_net else qp
+  gain, shift = q_params["params"]["critics"]["norm_0"]["scale"], q_params["params"]["critics"]["norm_0"]["bias"]
+  assert gain.shape == (2, 16) and np.all(np.asarray(gain) == 1.0) and np.all(np.asarray(shift) == 0.0)
+  # normalised hidden layers: scaling the inputs by 1e4 moves Q far less than without LayerNorm
+  obs, act = jnp.linspace(-1.0, 1.0, 35).reshape(7, 5), jnp.zeros((7, 3))
+  plain = nets.make_sac_networks(5, 3, (16, 8), value_net=value_net)
+  pq = plain.q_init(jax.random.PRNGKey(1))
+  grow = lambda net, p: float(jnp.max(jnp.abs(net.q_apply(p, 1e4 * obs, act))))
+  assert grow(n, qp) < 10.0 < grow(plain, pq)
+  if value_net:
+    assert n.v_apply(qp, obs).shape == (7,)
 
 
 def to_j(tree):

@@ -30,17 +30,22 @@ LOG_STD_MAX = 2.0
 
 
 class MLP(nn.Module):
-  """Dense layers with ``activation`` between them and a linear output layer."""
+  """Dense layers with ``activation`` between them and a linear output layer; with ``layer_norm``, a
+  LayerNorm after each hidden Dense (before the activation), as in DroQ / RLPD critics."""
 
   hidden_sizes: Sequence[int]
   out_size: int
   activation: Callable[[jax.Array], jax.Array] = nn.relu
   kernel_init: Callable[..., Any] = nn.initializers.lecun_uniform()
+  layer_norm: bool = False
 
   @nn.compact
   def __call__(self, x: jax.Array) -> jax.Array:
     for i, h in enumerate(self.hidden_sizes):
-      x = self.activation(nn.Dense(h, kernel_init=self.kernel_init, name=f"hidden_{i}")(x))
+      x = nn.Dense(h, kernel_init=self.kernel_init, name=f"hidden_{i}")(x)
+      if self.layer_norm:
+        x = nn.LayerNorm(name=f"norm_{i}")(x)
+      x = self.activation(x)
     return nn.Dense(self.out_size, kernel_init=self.kernel_init, name="out")(x)
 
 
@@ -65,6 +70,7 @@ class TwinQ(nn.Module):
   hidden_sizes: Sequence[int]
   activation: Callable[[jax.Array], jax.Array] = nn.relu
   num_critics: int = 2
+  layer_norm: bool = False
 
   @nn.compact
   def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
@@ -76,7 +82,7 @@ class TwinQ(nn.Module):
         in_axes=None,
         out_axes=-1,
         axis_size=self.num_critics,
-    )(self.hidden_sizes, 1, self.activation, name="critics")
+    )(self.hidden_sizes, 1, self.activation, layer_norm=self.layer_norm, name="critics")
     return critics(x)[..., 0, :]  # (..., 1, num_critics) -> (..., num_critics)
 
 
@@ -115,12 +121,14 @@ def make_sac_networks(
     critic_hidden_sizes: Sequence[int] | None = None,
     activation: Callable[[jax.Array], jax.Array] = nn.relu,
     value_net: bool = False,
+    critic_layer_norm: bool = False,
 ) -> SACNetworks:
-  """Builds the policy and twin-Q networks (float32 parameters), plus V with ``value_net``."""
+  """Builds the policy and twin-Q networks (float32 parameters), plus V with ``value_net``; with
+  ``critic_layer_norm``, Q and V normalise each hidden layer (the policy never does)."""
   critic_hidden_sizes = tuple(hidden_sizes if critic_hidden_sizes is None else critic_hidden_sizes)
   policy = GaussianPolicy(tuple(hidden_sizes), action_size, activation)
-  q = TwinQ(critic_hidden_sizes, activation)
-  v = MLP(critic_hidden_sizes, 1, activation)
+  q = TwinQ(critic_hidden_sizes, activation, layer_norm=critic_layer_norm)
+  v = MLP(critic_hidden_sizes, 1, activation, layer_norm=critic_layer_norm)
   dummy_obs = jax.ShapeDtypeStruct((1, observation_size), jnp.float32)
   dummy_act = jax.ShapeDtypeStruct((1, action_size), jnp.float32)
   key_shape = jax.ShapeDtypeStruct((2,), jnp.uint32)
@@ -167,23 +175,25 @@ def make_sac_networks(
 def lecun_uniform_init(shapes: Params, key: jax.Array) -> Params:
   """Parameters for the pytree of ``jax.ShapeDtypeStruct`` ``shapes`` from ONE random draw.
 
-  Kernels (leaves with ndim >= 2, fan-in = ``shape[-2]``, so stacked twin-critic kernels of shape
+  Kernels (leaves named ``kernel``, fan-in = ``shape[-2]``, so stacked twin-critic kernels of shape
   ``(2, in, out)`` get fan-in ``in``) ~ U(-sqrt(3/fan_in), sqrt(3/fan_in)), the distribution of
-  flax's ``lecun_uniform`` (brax's default); biases are 0. Unlike ``module.init``, which draws once
-  per layer through flax's RNG folding, this compiles one threefry kernel per network: on this
-  CPU that cut the compile time of ``jit(vmap(init))`` from about 9 s to about 1 s.
+  flax's ``lecun_uniform`` (brax's default); biases are 0 and LayerNorm gains 1. Unlike
+  ``module.init``, which draws once per layer through flax's RNG folding, this compiles one threefry
+  kernel per network (faster to compile under ``jit(vmap(init))``).
   """
-  leaves, treedef = jax.tree_util.tree_flatten(shapes)
-  sizes = [math.prod(l.shape) if l.ndim >= 2 else 0 for l in leaves]
+  paths, treedef = jax.tree_util.tree_flatten_with_path(shapes)
+  name = lambda path: getattr(path[-1], "key", None)
+  # by name, not by rank: the stacked twin critics' biases and LayerNorm gains are 2-D too
+  sizes = [math.prod(leaf.shape) if name(path) == "kernel" else 0 for path, leaf in paths]
   u = jax.random.uniform(key, (max(sum(sizes), 1),), jnp.float32, -1.0, 1.0)
   out, offset = [], 0
-  for leaf, size in zip(leaves, sizes):
-    if leaf.ndim >= 2:
+  for (path, leaf), size in zip(paths, sizes):
+    if size:
       limit = math.sqrt(3.0 / leaf.shape[-2])
       out.append((limit * u[offset:offset + size]).reshape(leaf.shape).astype(leaf.dtype))
       offset += size
     else:
-      out.append(jnp.zeros(leaf.shape, leaf.dtype))
+      out.append((jnp.ones if name(path) == "scale" else jnp.zeros)(leaf.shape, leaf.dtype))
   return jax.tree_util.tree_unflatten(treedef, out)
 
 

@@ -82,6 +82,9 @@ class SACConfig:
   # (algs/discrim_sac.py, algs/kl_sac.py); True: bootstrap through it (only falls and solved tasks
   # are terminal).
   bootstrap_time_limits: bool = False
+  # LayerNorm in every hidden layer of Q (and V): stable critics at higher learning rates and update
+  # ratios (DroQ, RLPD); the policy is unchanged, so a card's policy loads either way.
+  critic_layer_norm: bool = False
 
   def __post_init__(self):
     # Plain Python numbers (numpy ones, e.g. an np.int64 budget, are accepted) and tuples, so the
@@ -171,7 +174,7 @@ class SACConfig:
         f"learning_starts={self.learning_starts} >= total_env_steps={self.total_env_steps}: the "
         "agent would never learn; lower learning_starts",
     )
-    for name in ("normalize_observations", "value_net", "bootstrap_time_limits"):
+    for name in ("normalize_observations", "value_net", "bootstrap_time_limits", "critic_layer_norm"):
       v = getattr(self, name)
       need(isinstance(v, bool), f"{name}={v!r}: must be True or False")
     need(math.isfinite(self.reward_scale), f"reward_scale={self.reward_scale}: must be finite")

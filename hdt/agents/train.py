@@ -165,7 +165,7 @@ def make_networks(env, config: SACConfig) -> nets.SACNetworks:
   """The SAC networks make_train builds for ``env`` and ``config`` (pure functions; cheap)."""
   return nets.make_sac_networks(
       int(env.observation_size), int(env.action_size), config.hidden_sizes, config.critic_sizes,
-      value_net=config.value_net)
+      value_net=config.value_net, critic_layer_norm=config.critic_layer_norm)
 
 
 def make_train(

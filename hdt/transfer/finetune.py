@@ -220,12 +220,16 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
   env, low = high_env_with_low(task, low, backend, **(card_a.obs_layout.task_options() | task_overrides))
   a_norm = ckpt.NORM in a_params  # A's observation statistics, saved beside its policy
   a_vnet = "v" in a_params["q"]  # A ran SB2's SAC (SACConfig.value_net)
+  a_ln = bool(card_a.sac.get("critic_layer_norm", False))
   if config is None:
     config = configs.finetune_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm,
-                                     value_net=a_vnet)
+                                     value_net=a_vnet, critic_layer_norm=a_ln)
   if spec.init == "sac" and config.value_net != a_vnet:
     raise ckpt.CheckpointError(f"{high} was trained with value_net={a_vnet} and finetuning starts from its "
                                f"critics: pass --value-net {a_vnet} (or init='policy')")
+  if spec.init == "sac" and config.critic_layer_norm != a_ln:
+    raise ckpt.CheckpointError(f"{high} was trained with critic_layer_norm={a_ln} and finetuning starts from "
+                               f"its critics: pass --critic-layer-norm {a_ln} (or init='policy')")
   card_b = lambda config, **extra: PolicyCard.from_env(env, "high", config, low=low, task_overrides=task_overrides,
                                                        **extra)
   card_a.check_finetunes_to(card_b(config).replace(source=low.path))
