@@ -117,6 +117,26 @@ def test_resume_equals_uninterrupted_run(uninterrupted, resumed):
   assert_trees_equal(params["policy"], jax.tree.map(lambda x: np.asarray(x[1]), resumed.params["policy"]))
 
 
+def test_a_finished_run_is_returned_as_it_is_and_one_of_other_settings_refused(uninterrupted, tmp_path):
+  """runner.finished_run: what hdt reproduce reuses. The finished run comes back as run_stage returned
+  it without a byte written; an interrupted one, or a larger budget, is None (resume it); other seeds
+  are refused naming the difference."""
+  stage = runner.Stage(ENV, CFG, CARD, "toy", plugins=ALIGN)
+  before = _snapshot(uninterrupted.run_dir)
+  res = runner.finished_run(stage, RunOptions([0, 3], uninterrupted.run_dir))
+  assert _snapshot(uninterrupted.run_dir) == before
+  assert_trees_equal(res.params, uninterrupted.params)
+  assert_trees_equal(res.best, uninterrupted.best)
+  assert_trees_equal(without_walltime(res.history), without_walltime(uninterrupted.history))
+  assert runner.finished_run(stage, RunOptions([0, 3], tmp_path / "nothing")) is None
+  with pytest.raises(ckpt.CheckpointError, match=r"seeds: saved \[0, 3\], requested \[0, 1\]"):
+    runner.finished_run(stage, RunOptions([0, 1], uninterrupted.run_dir))
+  killed = tmp_path / "killed"
+  shutil.copytree(uninterrupted.run_dir, killed)
+  (killed / "meta.json").unlink()  # stopped after its last state save, before its outputs were complete
+  assert runner.finished_run(stage, RunOptions([0, 3], killed)) is None
+
+
 def test_best_evaluation_params_survive_resume(uninterrupted, resumed):
   """The best-of-evaluation record (policy, q, return, env step per seed) of a resumed run equals the
   uninterrupted run's: it is part of the saved state, and it is saved beside the final params."""

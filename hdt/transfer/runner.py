@@ -98,6 +98,26 @@ def run_stage(stage: Stage, options: RunOptions = RunOptions()) -> RunResult:
   return run_points(stage, [({}, options.out)], options)[0]
 
 
+def finished_run(stage: Stage, options: RunOptions = RunOptions()) -> RunResult | None:
+  """The run in ``options.out`` as :func:`run_stage` returned it, when it is a finished run of
+  exactly ``stage`` and ``options.seeds`` (nothing is trained or written); None when ``out`` holds
+  no finished run: nothing, or an interrupted run or a smaller budget (continue it with
+  ``resume=True``). A run of other settings is refused with a CheckpointError naming the difference,
+  as resuming it would be."""
+  out = options.out
+  if out is None or not ckpt.has_state(out):
+    return None
+  seeds = sac_train.seed_list(options.seeds)
+  info = dict(config=dataclasses.asdict(stage.config), meta=stage.card.to_json(), seeds=seeds)
+  _check_resumable(Path(out), info, extendable=not stage.plugins, legacy_meta=stage.legacy_meta)
+  # meta.json is written last (_write_run): without it the run stopped before its outputs were complete
+  if ckpt.load_state_info(out).get("env_steps") != stage.config.total_env_steps or not (Path(out) / "meta.json").is_file():
+    return None
+  _, history, best = _resume(Path(out), sac_train.make_train(stage.env, stage.config, plugins=stage.plugins), info)
+  params, _ = ckpt.load_all(out, "final")
+  return RunResult(Path(out), params, history, stage.card.replace(source=str(out)), best)
+
+
 def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -> list[RunResult]:
   """:func:`run_stage` for grid points ``[(hyper, out)]`` (hyper: values of SWEEPABLE fields replacing
   ``stage.config``'s, and of the stage's plug-ins' hyper, e.g. ``kl_weight``, recorded in the point's
