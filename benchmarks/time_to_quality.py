@@ -215,29 +215,42 @@ def hdt_loop_seeds(label, env, cfg, seeds, make_eval, thresholds, max_seconds, l
 # SBX
 
 
-def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log, metric="dist"):
+def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log, metric="dist",
+            algo="sac"):
   from gym_reach import ReachGymEnv
 
   env = make(agent, "reach")  # hdt env: the model for the gym port, and the evaluator's env
   t0 = time.perf_counter()
-  make_eval = lambda apply_fn: make_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes, metric)
-  return sbx_loop(f"sbx {agent}", lambda: ReachGymEnv(env, seed=seed), hp, seed, make_eval, thresholds,
-                  eval_every, max_steps, max_seconds, log, t0, higher=metric == "success", metric_name=metric)
+  return sbx_loop(f"sbx {algo} {agent}", lambda: ReachGymEnv(env, seed=seed), hp, seed,
+                  lambda act: make_evaluator(env, act, episodes, metric), thresholds,
+                  eval_every, max_steps, max_seconds, log, t0, higher=metric == "success", metric_name=metric,
+                  algo=algo)
 
 
 def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_steps, max_seconds,
-             log, t0, higher=False, metric_name="dist"):
-  """Trains SBX SAC (the paper's ``hp``, one env, one update per env step) on ``make_genv()``,
-  evaluating every ``eval_every`` env steps with ``make_eval(actor apply_fn)(params) -> metric``;
-  the training clock starts at ``t0`` and excludes evaluation."""
-  from sbx import SAC
+             log, t0, higher=False, metric_name="dist", algo="sac"):
+  """Trains SBX on ``make_genv()`` (one env, one update per env step): ``algo="sac"`` at the paper's
+  ``hp``; ``"crossq"`` at CrossQ's published defaults (sbx's: batch-renormalised 2048-wide critics
+  without targets, lr 1e-3, batch 256, policy delay 3). Evaluates every ``eval_every`` env steps with
+  ``make_eval(act)(params) -> metric``, ``act(params, obs) -> deterministic action``; the training clock
+  starts at ``t0`` and excludes evaluation."""
   from stable_baselines3.common.callbacks import BaseCallback
 
   genv = make_genv()
-  model = SAC("MlpPolicy", genv, learning_rate=hp["learning_rate"], batch_size=hp["batch_size"],
-              buffer_size=hp["buffer_size"], learning_starts=100, train_freq=1, gradient_steps=1,
-              policy_kwargs=dict(net_arch=list(hp["net_arch"])), seed=seed, verbose=0)
-  evaluate = make_eval(model.policy.actor_state.apply_fn)
+  if algo == "crossq":
+    from sbx import CrossQ
+    model = CrossQ("MlpPolicy", genv, seed=seed, verbose=0)
+    actor = model.policy.actor_state
+    # batch statistics frozen at evaluation (train=False), as sbx's own predict
+    evaluate = make_eval(lambda p, obs: actor.apply_fn(p, obs, train=False).mode())
+    params = lambda m: {"params": m.policy.actor_state.params, "batch_stats": m.policy.actor_state.batch_stats}
+  else:
+    from sbx import SAC
+    model = SAC("MlpPolicy", genv, learning_rate=hp["learning_rate"], batch_size=hp["batch_size"],
+                buffer_size=hp["buffer_size"], learning_starts=100, train_freq=1, gradient_steps=1,
+                policy_kwargs=dict(net_arch=list(hp["net_arch"])), seed=seed, verbose=0)
+    evaluate = make_eval(lambda p, obs: model.policy.actor_state.apply_fn(p, obs).mode())
+    params = lambda m: m.policy.actor_state.params
   state = dict(eval_s=0.0, curve=[])
   stop = (max if higher else min)(thresholds)
 
@@ -247,7 +260,7 @@ def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_
       if n % eval_every:
         return True
       te = time.perf_counter()
-      metric = float(evaluate(self.model.policy.actor_state.params))
+      metric = float(evaluate(params(self.model)))
       now = time.perf_counter()
       state["eval_s"] += now - te
       t = now - t0 - state["eval_s"]
@@ -371,6 +384,9 @@ def main():
   ap.add_argument("--out", default=os.path.join(HERE, "time_to_quality.json"))
   ap.add_argument("--no-results", action="store_true", help="do not update benchmarks/results.json")
   ap.add_argument("--compile-cache", help="JAX compilation cache dir for hdt (default: a fresh temp dir)")
+  ap.add_argument("--sbx-algo", choices=("sac", "crossq"), default="sac",
+                  help="SBX's SAC at the paper's hyper-parameters, or CrossQ at its published defaults "
+                       "(results under 'crossq', compared in crossq_speedup_<agent>_ll_paper_quality)")
   args = ap.parse_args()
   agents = args.agents.split(",")
   if args.check:
@@ -431,17 +447,21 @@ def main():
       res["hdt"] = hdt_rows(HDT_CONFIGS, hdt_names, lambda ov, ss: run_hdt(
           agent, ov, ss, thrs, every, cap, 60 * args.hdt_max_minutes, args.eval_episodes, log, metric),
           seeds, args.vmapped_seeds)
+    sbx_key = "crossq" if args.sbx_algo == "crossq" else "sbx"
     if not args.skip_sbx:
       runs = [run_sbx(agent, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
-                      args.eval_episodes, log, metric) for s in seeds]
-      res["sbx"] = dict(runs=runs)
-    if os.path.exists(args.out) and (args.skip_sbx or args.skip_hdt):  # merge with the other half
+                      args.eval_episodes, log, metric, algo=args.sbx_algo) for s in seeds]
+      res[sbx_key] = dict(runs=runs)
+    if os.path.exists(args.out):  # merge with the halves this invocation did not run
       with open(args.out) as f:
         old = json.load(f).get("agents", {}).get(agent, {})
-      if args.skip_sbx and old.get("sbx"):
-        res["sbx"] = old["sbx"]
+      for key in ("sbx", "crossq"):
+        if old.get(key) and (key != sbx_key or args.skip_sbx):
+          res[key] = old[key]
       if args.skip_hdt:
         res["hdt"] = old.get("hdt", {})
+      else:  # other hdt configs measured before stay beside this invocation's
+        res["hdt"] = {**old.get("hdt", {}), **res["hdt"]}
     res["by_threshold"] = compare(res, thrs)
     out["agents"][agent] = res
     out["machine"]["load_end"] = load()
@@ -509,6 +529,10 @@ def compare(res, thrs):
                                           / h["median_seconds_excl_startup"])
         c["speedup_is_lower_bound"] = not s["all_reached"]
         c["hdt_all_reached"] = h["all_reached"]
+      if res.get("crossq"):
+        q = c["crossq"] = summarize(res["crossq"]["runs"], thr)
+        c["crossq_speedup_seconds"] = q["median_seconds"] / c["hdt"][best]["median_seconds"]
+        c["crossq_speedup_is_lower_bound"] = not q["all_reached"]
     out[str(thr)] = c
   return out
 

@@ -241,7 +241,7 @@ def run_sbx(task, low_dir, hp, seed, thresholds, eval_every, max_steps, max_seco
   env = pipeline.high_env(task, low_dir)  # evaluator's env; the gym wrapper (built inside the clock) wraps it too
   t0 = time.perf_counter()
   metric = TASKS[task]["metric"]
-  make_eval = lambda apply_fn: make_hl_evaluator(env, lambda p, obs: apply_fn(p, obs).mode(), episodes, metric)
+  make_eval = lambda act: make_hl_evaluator(env, act, episodes, metric)
   genv = []
   res = ttq.sbx_loop("sbx HL", lambda: genv.append(make_gym_env(env, seed=seed)) or genv[0], hp, seed,
                      make_eval, thresholds, eval_every, max_steps, max_seconds, log, t0, higher=True,

@@ -889,6 +889,18 @@ def test_mujoco_warnings_are_counted_not_printed(capfd):
   assert len(err.strip().splitlines()) == 1 and err.startswith(f"MuJoCo reported {len(warned)} simulation warning")
 
 
+def test_a_run_saved_before_a_sac_field_existed_resumes_under_its_old_value(monkeypatch):
+  """A state whose config lacks a SACConfig field added since resumes when the run asks for the
+  behaviour it had (sac.ADDED_FIELDS), and names the field when it asks for another."""
+  from hdt.agents import sac as sac_lib
+  def info(**cfg):
+    return dict(config=dict(total_env_steps=10, **cfg), seeds=[0], meta=dict(level="low"))
+  monkeypatch.setattr(runner.ckpt, "load_state_info", lambda source: info())
+  runner._check_resumable(Path("old"), info(**sac_lib.ADDED_FIELDS))
+  with pytest.raises(ckpt.CheckpointError, match="critic_layer_norm: saved False, requested True"):
+    runner._check_resumable(Path("old"), info(**(sac_lib.ADDED_FIELDS | {"critic_layer_norm": True})))
+
+
 def test_an_alignment_saved_before_a_disc_field_existed_resumes_under_its_old_value(monkeypatch):
   """A run saved before a DiscConfig field existed ran with that field's earlier behaviour
   (disc_lib.ADDED_FIELDS): asking for that value resumes it, the new default is named as a difference.

@@ -206,6 +206,11 @@ class SACConfig:
 MAX_COUNT = 2**31  # step counters and buffer indices are int32
 
 
+# SACConfig fields added after runs were saved without them, at the behaviour those runs had: a
+# saved state missing a field resumes under this value (hdt.transfer.runner).
+ADDED_FIELDS = {"bootstrap_time_limits": True, "critic_layer_norm": False}
+
+
 def _is_int(v) -> bool:
   return isinstance(v, numbers.Integral) and not isinstance(v, bool)
 
@@ -391,8 +396,13 @@ def make_update(
     *,
     actor_regularizer: ActorRegularizer | None = None,
     reward_fn: RewardFn | None = None,
+    axis_name: str | None = None,
 ):
   """Returns ``update(state, batch, noise, aux_state=None, hyper=None) -> (state, metrics)``.
+
+  ``axis_name``: with the batch split over devices along this mapped axis (``shard_map``), every
+  gradient and metric is averaged over it (``pmean``) before the optimisers step, so the replicated
+  state takes the step of the whole batch (brax's ``pmap_axis_name``).
 
   ``noise``: standard-normal array of shape ``(2, batch, action_size)``, the reparameterisation
   noise of the critic target's next action (``noise[0]``) and of the actor loss (``noise[1]``),
@@ -415,9 +425,10 @@ def make_update(
         actor_regularizer=actor_regularizer,
     )
     pi_opt, q_opt, a_opt = make_optimizers(config, h)
-    critic_grad = jax.value_and_grad(critic_loss, has_aux=True)
-    actor_grad = jax.value_and_grad(actor_loss, has_aux=True)
-    alpha_grad = jax.value_and_grad(alpha_loss)
+    mean = (lambda x: x) if axis_name is None else (lambda x: jax.lax.pmean(x, axis_name))
+    critic_grad = lambda *a: mean(jax.value_and_grad(critic_loss, has_aux=True)(*a))
+    actor_grad = lambda *a: mean(jax.value_and_grad(actor_loss, has_aux=True)(*a))
+    alpha_grad = lambda *a: mean(jax.value_and_grad(alpha_loss)(*a))
     eps_critic, eps_actor = noise[0], noise[1]
     if reward_fn is not None:
       batch = batch.replace(reward=reward_fn(aux_state, batch).astype(batch.reward.dtype))
@@ -460,7 +471,7 @@ def make_update(
         "entropy": -jnp.mean(a_aux["log_prob"]),
         "q": c_aux["q"],
         "target_q": c_aux["target_q"],
-        "batch_reward": jnp.mean(batch.reward),
+        "batch_reward": mean(jnp.mean(batch.reward)),
     } | ({"v": c_aux["v"]} if networks.value_net else {}) | a_aux["regularizer"]
     return new_state, metrics
 

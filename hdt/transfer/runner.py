@@ -22,7 +22,7 @@ from hdt.progress import run_progress
 from hdt.agents import sharding
 from hdt.agents import train as sac_train
 from hdt.agents.plugins import Plugin
-from hdt.agents.sac import SWEEPABLE, SACConfig
+from hdt.agents.sac import ADDED_FIELDS as SAC_ADDED_FIELDS, SWEEPABLE, SACConfig
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import names, rundir
 from hdt.transfer.memory import check_train_memory
@@ -334,7 +334,7 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False, legacy_
           f"cannot resume {source} with total_env_steps={budget(info)}: it has already trained {done} env "
           f"steps; give --total-env-steps >= {done}")
     saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)))
-  saved = _same_low_as_slim_copy(_with_legacy_fields(saved, legacy_meta or {}), info)
+  saved = _same_low_as_slim_copy(_with_legacy_fields(saved, legacy_meta or {}, info.get("config") or {}), info)
   # meta["sac"] repeats the config; a state saved before the card format was recorded has format 1
   no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m not in ("sac", FORMAT_KEY)} if k == "meta"
                           else d.get(k)) for k in info}
@@ -353,14 +353,18 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False, legacy_
         f"(see {ckpt.state_dir(source) / 'state.json'}) or start a new run in another out= directory")
 
 
-def _with_legacy_fields(saved: dict, legacy_meta: dict[str, dict]) -> dict:
+def _with_legacy_fields(saved: dict, legacy_meta: dict[str, dict], requested_config: dict) -> dict:
   """``saved`` with the meta fields added since it was written (``legacy_meta``, see
-  :attr:`Stage.legacy_meta`) set to the values it ran with."""
+  :attr:`Stage.legacy_meta`) set to the values it ran with, and so the SACConfig fields added since
+  (:data:`hdt.agents.sac.ADDED_FIELDS`)."""
   meta = dict(saved.get("meta") or {})
   for key, fields in legacy_meta.items():
     if isinstance(meta.get(key), dict):
       meta[key] = {**fields, **meta[key]}
-  return dict(saved, meta=meta)
+  config = saved.get("config")
+  if isinstance(config, dict):
+    config = {**{k: v for k, v in SAC_ADDED_FIELDS.items() if k in requested_config}, **config}
+  return dict(saved, meta=meta, config=config)
 
 
 def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
