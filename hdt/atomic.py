@@ -91,6 +91,26 @@ def open_atomic(path, mode: str = "w", **kw) -> Iterator[IO]:
     raise
 
 
+@contextlib.contextmanager
+def temp_path(path) -> Iterator[str]:
+  """The name of an empty hidden temporary beside ``path``, for writers that open files by name (a
+  compiler, a video encoder): renamed over ``path`` when the block ends without an error, otherwise
+  removed and the error raised. ``path`` never holds a half-written file."""
+  path = Path(path)
+  fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=_prefix(path), suffix=TMP_SUFFIX)
+  os.close(fd)
+  try:
+    yield tmp
+    os.chmod(tmp, file_mode())
+    os.replace(tmp, path)
+  except BaseException as e:
+    with contextlib.suppress(OSError):
+      os.unlink(tmp)
+    if isinstance(e, OSError) and not e.filename:
+      e.filename = str(path)
+    raise
+
+
 def write_text(path, text: str) -> Path:
   with open_atomic(path, "w") as f:
     f.write(text)

@@ -23,13 +23,15 @@ import importlib
 import os
 import subprocess
 import sys
-import tempfile
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
 import numpy as np
+
+from hdt import atomic
+from hdt.transfer import names
 
 SUBGOAL_RGBA = (1.0, 0.85, 0.0, 1.0)  # yellow: no scene or robot of hdt's is (tests look for it)
 TARGET_RGBA = (0.9, 0.1, 0.1, 0.45)
@@ -352,6 +354,10 @@ def check_out(out: str | Path, overwrite: bool = False) -> Path:
     raise ValueError(f"{out}: name the video .mp4 or .gif")
   if out.is_dir():
     raise ValueError(f"{out} is a directory: give a file name ending in .mp4 or .gif")
+  zoo = Path(names.ZOO_DIR).resolve()
+  if zoo in out.resolve().parents:
+    raise ValueError(f"{out} lies in the model zoo ({zoo}), which only `hdt zoo export` writes: give a path "
+                     f"outside it")
   if out.exists() and not overwrite:
     raise ValueError(f"{out} exists: pass --overwrite (overwrite=True) to replace it, or give another file name")
   return out
@@ -369,28 +375,11 @@ def write(images: Iterable[np.ndarray], out: str | Path, fps: float, overwrite: 
       print(f"hdt render: {e}; writing {gif} instead", file=sys.stderr)
       return write(images, check_out(gif, overwrite), fps, overwrite)
   out.parent.mkdir(parents=True, exist_ok=True)
-  # A hidden temporary beside ``out``, renamed over it when complete: a killed render leaves no
-  # half-written video under the name.
-  fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
-  os.close(fd)
-  try:
+  with atomic.temp_path(out) as tmp:  # a killed render leaves no half-written video under the name
     n = _write_mp4(images, tmp, fps) if out.suffix.lower() == ".mp4" else _write_gif(images, tmp, fps)
     if n == 0:
       raise ValueError("no frames to write: the rollout took no steps")
-    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp's files are private; a video is as shareable as any file
-    os.replace(tmp, out)
-  except BaseException as e:
-    Path(tmp).unlink(missing_ok=True)
-    if isinstance(e, OSError) and not e.filename:
-      e.filename = str(out)
-    raise
   return out
-
-
-def _umask() -> int:
-  old = os.umask(0o022)
-  os.umask(old)
-  return old
 
 
 def _write_mp4(images, path: str, fps: float) -> int:

@@ -96,3 +96,21 @@ def test_bad_sizes_are_refused():
     render.RenderConfig(width=161).check()
   with pytest.raises(ValueError, match=r"\.mp4 or \.gif"):
     render.check_out("clip.avi")
+
+
+def test_a_video_is_never_written_into_the_zoo(tmp_path, monkeypatch):
+  from hdt.transfer import names
+  monkeypatch.setattr(names, "ZOO_DIR", tmp_path / "zoo")
+  (tmp_path / "zoo" / "ant").mkdir(parents=True)
+  with pytest.raises(ValueError, match="lies in the model zoo"):
+    render.check_out(tmp_path / "zoo" / "ant" / "clip.mp4")
+  assert render.check_out(tmp_path / "clip.mp4") == tmp_path / "clip.mp4"
+
+
+def test_a_failed_write_leaves_nothing_under_the_name(tmp_path):
+  def broken():
+    yield np.zeros((16, 16, 3), np.uint8)
+    raise RuntimeError("renderer died")
+  with pytest.raises(RuntimeError, match="renderer died"):
+    render.write(broken(), tmp_path / "c.gif", fps=10)
+  assert list(tmp_path.iterdir()) == []

@@ -17,7 +17,6 @@ import os
 import shutil
 import subprocess
 import sys
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import jaxlib
 import mujoco
 import numpy as np
 
+from hdt import atomic
 from hdt.cache import cache_dir
 
 SOURCE = Path(__file__).with_name("native_ffi.cc")
@@ -46,20 +46,14 @@ def _build(out: Path) -> None:
     raise FileNotFoundError("no C++ compiler (g++, c++ or clang++) on PATH")
   lib = _mujoco_lib()
   out.parent.mkdir(parents=True, exist_ok=True)
-  fd, tmp = tempfile.mkstemp(suffix=".so", dir=out.parent)
-  os.close(fd)
-  cmd = [cxx, "-O2", "-std=c++17", "-shared", "-fPIC", "-pthread", str(SOURCE), "-o", tmp,
-         f"-I{jax.ffi.include_dir()}", f"-I{lib.parent / 'include'}", str(lib),
-         f"-Wl,-rpath,{lib.parent}"]
-  try:
+  with atomic.temp_path(out) as tmp:  # a concurrent or killed build never leaves half a library
+    cmd = [cxx, "-O2", "-std=c++17", "-shared", "-fPIC", "-pthread", str(SOURCE), "-o", tmp,
+           f"-I{jax.ffi.include_dir()}", f"-I{lib.parent / 'include'}", str(lib),
+           f"-Wl,-rpath,{lib.parent}"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
       errors = [l for l in proc.stderr.splitlines() if "error" in l][:5] or proc.stderr.splitlines()[-5:]
       raise RuntimeError(f"{' '.join(cmd)} failed:\n" + "\n".join(errors))
-    os.replace(tmp, out)  # atomic: a concurrent or killed build never leaves half a library
-  finally:
-    if os.path.exists(tmp):
-      os.remove(tmp)
 
 
 @functools.cache
