@@ -76,19 +76,8 @@ def remove(path: Path, settle: float = 0.0) -> None:
 def open_atomic(path, mode: str = "w", **kw) -> Iterator[IO]:
   """``open`` for writing ``path`` in full: the file appears under its name only when the block ends
   without an error; otherwise the temporary is removed and the error raised."""
-  path = Path(path)
-  fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=_prefix(path), suffix=TMP_SUFFIX)
-  try:
-    os.fchmod(fd, file_mode())
-    with os.fdopen(fd, mode, **kw) as f:
-      yield f
-    os.replace(tmp, path)
-  except BaseException as e:
-    with contextlib.suppress(OSError):
-      os.unlink(tmp)
-    if isinstance(e, OSError) and not e.filename:
-      e.filename = str(path)
-    raise
+  with temp_path(path) as tmp, open(tmp, mode, **kw) as f:
+    yield f
 
 
 @contextlib.contextmanager
