@@ -6,7 +6,9 @@ This is what a reference user of stable-baselines / SBX would write: one ``MjDat
 compiled (taken from the hdt env object):
 
 * obs = [obs_lo, goal - point], obs_lo = agent joint positions (cos/sin for the arms, without the
-  global x, y for the point mass), joint velocities (+ clipped touch sensors, rangefinders if any);
+  global x, y for the point mass and the legged robots), joint velocities, for the legged robots the
+  clipped ``cfrc_ext`` rows in the authors' layout (+ clipped touch sensors, rangefinders if any); read
+  after the step, as hdt (``mj_forward``, and ``mj_rnePostConstraint`` for the contact forces);
 * physics reset (hdt's ``AgentTaskEnv.initial_physics``, redrawn at every physics reset): qpos0 + the LL
   offset + half-widths x U(-1, 1) (hdt's ``_start_half``, ``_start_offset``), clipped to the joint limits,
   free-joint quaternions normalised; qvel = noise x N(0, 1) for legged agents, x U(-1, 1) otherwise;
@@ -54,7 +56,7 @@ class ReachGymEnv(gym.Env):
     self._qpos0 = np.asarray(e._qpos0, np.float64)
     self._point = e._sensor["point"][:2]
     self._tip_z = e._sensor["tip"][2]
-    self._touch, self._rays = e._touch, e._rays
+    self._touch, self._rays, self._bodies = e._touch, e._rays, e._bodies
     self._ctrl_lo, self._ctrl_hi = np.float64(e._ctrl_lo), np.float64(e._ctrl_hi)
     n_obs = int(e.observation_size)
     self.observation_space = gym.spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
@@ -74,22 +76,32 @@ class ReachGymEnv(gym.Env):
     qp, qv = d.qpos[self._qpos_idx], d.qvel[self._qvel_idx]
     qp = np.concatenate([np.cos(qp), np.sin(qp)]) if a.trig_angles else qp[a.qpos_skip:]
     touch = np.clip(d.sensordata[self._touch] / a.contact_clip, 0.0, 1.0)
-    lo = np.concatenate([qp, qv, touch, d.sensordata[self._rays]])
+    contacts = np.zeros(0)
+    if a.contact_forces:
+      before, after = a.contact_rows
+      rows = np.clip(d.cfrc_ext[self._bodies], -1.0, 1.0).reshape(-1)
+      contacts = np.concatenate([np.zeros(6 * before), rows, np.zeros(6 * after)])
+    lo = np.concatenate([qp, qv, contacts, touch, d.sensordata[self._rays]])
     return np.concatenate([lo, self.goal - self.point()]).astype(np.float32)
 
   def _sample_goal(self):
     dm = self.spec_.delta_max
     self.goal = self.point() + self.np_random.uniform(-dm, dm, size=2)
 
-  def set_state(self, qpos, qvel, goal, sensordata=None):
-    """For the equivalence check against hdt: put the robot and the goal somewhere. ``sensordata``: hdt's,
-    which after a step lags qpos by one substep (MuJoCo computes sensors before integrating), where
-    ``mj_forward`` would bring it up to date."""
-    self.data.qpos[:], self.data.qvel[:] = qpos, qvel
-    self.data.time = 0.0
+  def _forward(self):
+    """Positions, sensors (and contact forces) of the current state, as hdt reads them after a step."""
     mujoco.mj_forward(self.model, self.data)
-    if sensordata is not None:
-      self.data.sensordata[:] = sensordata
+    if self.spec_.contact_forces:
+      mujoco.mj_rnePostConstraint(self.model, self.data)
+
+  def set_state(self, qpos, qvel, goal, act=None):
+    """For the equivalence check against hdt: put the robot (and its actuators' activations) and the
+    goal somewhere."""
+    self.data.qpos[:], self.data.qvel[:] = qpos, qvel
+    if act is not None and self.model.na:
+      self.data.act[:] = act
+    self.data.time = 0.0
+    self._forward()
     self.goal = np.asarray(goal, np.float64)
     self._steps = 0
     self._need_physics_reset = False
@@ -113,8 +125,10 @@ class ReachGymEnv(gym.Env):
         qpos[i:i + 4] /= np.linalg.norm(qpos[i:i + 4])
       draw = self.np_random.standard_normal if a.legged else (lambda n: self.np_random.uniform(-1, 1, n))
       d.qpos[:], d.qvel[:] = qpos, self._qvel_noise * draw(self._qvel_noise.shape)
+      if m_na := self.model.na:
+        d.act[:] = np.zeros(m_na)
       d.time = 0.0
-      mujoco.mj_forward(self.model, d)
+      self._forward()
     self._sample_goal()
     self._steps = 0
     return self._obs(), {}
@@ -126,6 +140,7 @@ class ReachGymEnv(gym.Env):
     d.ctrl[:] = self._ctrl_lo + (action + 1.0) * 0.5 * (self._ctrl_hi - self._ctrl_lo)
     for _ in range(self.frame_skip):
       mujoco.mj_step(m, d)
+    self._forward()
     p = self.point()
     ctrl_cost = a.ctrl_cost * float(np.sum(np.square(d.ctrl)))  # of the raw control, as hdt's Reach.reward
     dist = float(np.linalg.norm(self.goal - p))

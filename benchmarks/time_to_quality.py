@@ -326,8 +326,9 @@ def check(agents):
     g = ReachGymEnv(e, seed=0)
     step, rng, od, rd = jax.jit(e.step, static_argnames="auto_reset"), np.random.default_rng(0), 0.0, 0.0
     for _ in range(40):
+      act = s.physics.act
       g.set_state(np.asarray(s.physics.qpos, np.float64), np.asarray(s.physics.qvel, np.float64),
-                  np.asarray(s.task["t"]["goal"]), np.asarray(s.physics.sensordata, np.float64))
+                  np.asarray(s.task["t"]["goal"]), None if act is None else np.asarray(act, np.float64))
       a = rng.uniform(-1, 1, e.action_size).astype(np.float32)
       s = step(s, a, auto_reset=False)
       o, r, *_ = g.step(a)
