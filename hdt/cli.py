@@ -32,6 +32,7 @@ if (__name__ == "__main__" or os.path.basename(sys.argv[0] if sys.argv else "") 
 
 import argparse
 import ast
+import contextlib
 import dataclasses
 import importlib.util
 import itertools
@@ -583,6 +584,7 @@ def _grid_value(name: str, text: str, field: dataclasses.Field):
 
 def cmd_sweep(args) -> int:
   from hdt import atomic
+  from hdt.agents.sharding import on_writer  # several processes: process 0 writes
   from hdt.report import markdown_table
   from hdt.transfer import pipeline, rundir, sweep
   from hdt.transfer.align import AlignSpec
@@ -638,7 +640,7 @@ def cmd_sweep(args) -> int:
   with rundir.claim(root, "sweep", overwrite=args.overwrite, reads=reads):
     rows = _sweep(args, grid, root, seeds, overrides, disc)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
-    atomic.write_text(root / "sweep.md", table + "\n")
+    on_writer(lambda: atomic.write_text(root / "sweep.md", table + "\n"), f"writing {root / 'sweep.md'}")
   print(table)
   return 0
 
@@ -881,6 +883,9 @@ def cmd_render(args) -> int:
 COMMANDS = {"train": cmd_train, "align": cmd_align, "finetune": cmd_finetune, "eval": cmd_eval,
             "sweep": cmd_sweep, "reproduce": cmd_reproduce, "report": cmd_report, "quickstart": cmd_quickstart,
             "zoo": cmd_zoo, "render": cmd_render}
+# What several processes run together with HDT_DISTRIBUTED=1 (jax.distributed): each trains its share
+# of the seeds (grid points) and process 0 writes; every other command runs as one process.
+DISTRIBUTED = ("train", "align", "finetune", "sweep")
 
 
 def _one_line(e: BaseException) -> str:
@@ -934,8 +939,11 @@ def _message(e: BaseException) -> tuple[str, int]:
   """(the one line printed for ``e``, exit status)."""
   rundir = sys.modules.get("hdt.transfer.rundir")
   ckpt = sys.modules.get("hdt.transfer.checkpoint")
+  sharding = sys.modules.get("hdt.agents.sharding")
   if isinstance(e, CLIError) or (rundir is not None and isinstance(e, rundir.RunDirError)):
     return f"error: {_one_line(e)}", 2
+  if sharding is not None and isinstance(e, sharding.OtherProcessFailed):
+    return f"hdt: error: {_one_line(e)}", 1
   if isinstance(e, (FileNotFoundError, ValueError, FloatingPointError)) or (
       ckpt is not None and isinstance(e, ckpt.CheckpointError)):
     return f"hdt: error: {_one_line(e)}", 1
@@ -952,13 +960,16 @@ def _run(argv) -> int:
   with interrupt.deferred():  # a KeyboardInterrupt inside an extension module's import can crash it later
     _import_hdt()
     import hdt.transfer.evaluate  # noqa: F401 (with pipeline, checkpoint, zoo: what every command loads)
-    from hdt.agents.sharding import initialize_distributed, use_cpu_cores
+    from hdt.agents.sharding import initialize_distributed, use_cpu_cores, writes
     from hdt.cache import enable_compile_cache
   args = build_parser().parse_args(argv)
   use_cpu_cores()  # vmapped seeds on all CPU cores (before any JAX operation)
-  initialize_distributed()  # no-op unless HDT_DISTRIBUTED=1 (one process per host)
+  several = args.cmd in DISTRIBUTED and initialize_distributed()  # only with HDT_DISTRIBUTED=1
   enable_compile_cache()  # a re-run of the same configuration loads its programs
-  code = COMMANDS[args.cmd](args)
+  with contextlib.ExitStack() as stack:
+    if several and not writes():  # process 0 reports; the others' errors still go to stderr
+      stack.enter_context(contextlib.redirect_stdout(stack.enter_context(open(os.devnull, "w"))))
+    code = COMMANDS[args.cmd](args)
   interrupt.raise_if_interrupted()  # a Ctrl-C that a library swallowed is not lost
   return code
 

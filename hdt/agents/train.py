@@ -666,7 +666,7 @@ def run(
     per_run = {k: sharding_lib.shard(jnp.asarray([value(k, p[k]) for p in points for _ in seeds], jnp.float32),
                                      sharding) for k in hyper}
     chunk_fn = lambda ts: fns.run_chunk(ts, per_run)
-  start_chunk = int(np.asarray(ts.env_steps).reshape(-1)[0]) // chunk_steps
+  start_chunk = int(sharding_lib.to_host(ts.env_steps).reshape(-1)[0]) // chunk_steps
 
   # Records are per-seed arrays; a resumed run continues the saved history (and its wall clock).
   hist: dict[str, list] = {k: list(np.swapaxes(np.asarray(v), 0, 1))

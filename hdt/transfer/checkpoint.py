@@ -30,7 +30,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from hdt import atomic
-from hdt.agents import normalizer
+from hdt.agents import normalizer, sharding
 from hdt.transfer import names
 from hdt.transfer.names import (SEED_HASHES, CheckpointError, content_hash, current, existing_seed_dir, list_seeds,
                                seed_dir)
@@ -72,13 +72,24 @@ def _quiet_orbax():
 _OS_ERROR = re.compile(r"os_error_code='?(\d+)")
 
 
+def _checkpointer():
+  """orbax's pytree checkpointer. With several processes (``jax.distributed``) orbax would wait for
+  every process to save together; hdt's checkpoints are host arrays that process 0 writes alone and
+  any process reads, so each process's checkpointer runs on that process only."""
+  if not sharding.several_processes():
+    return ocp.PyTreeCheckpointer()
+  alone = ocp.options.MultiprocessingOptions(primary_host=jax.process_index(),
+                                             active_processes={jax.process_index()})
+  return ocp.Checkpointer(ocp.PyTreeCheckpointHandler(multiprocessing_options=alone), multiprocessing_options=alone)
+
+
 def _orbax_save(path: Path, tree) -> None:
   """``tree`` saved by orbax at ``path``; a file-system failure (a full disk, a read-only mount) is
   raised as the OSError it is, naming ``path``."""
   before = set(threading.enumerate())
   try:
     with _quiet_orbax():
-      ocp.PyTreeCheckpointer().save(path, tree)
+      _checkpointer().save(path, tree)
   except Exception as e:  # orbax wraps OS errors in ValueError and others
     for t in set(threading.enumerate()) - before:  # its other writers: done before the caller cleans up
       t.join(timeout=30)
@@ -91,7 +102,7 @@ def _orbax_save(path: Path, tree) -> None:
 
 def _orbax_restore(path: Path):
   with _quiet_orbax():
-    return ocp.PyTreeCheckpointer().restore(path)
+    return _checkpointer().restore(path)
 
 
 WHICH = ("final", "best")

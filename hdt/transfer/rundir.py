@@ -276,7 +276,28 @@ def claim(out, kind: str = "run", resume: bool = False, overwrite: bool = False,
   """Checks ``out`` (:func:`check_claimable`), locks it, and yields it as a Path. With ``overwrite``
   an existing directory is first locked (so nobody is writing it), moved aside in one rename and
   deleted; the block then writes a fresh directory. If the block fails while the directory holds
-  nothing but hdt's bookkeeping, what this claim created is removed again."""
+  nothing but hdt's bookkeeping, what this claim created is removed again.
+
+  One of several processes (``jax.distributed``): every process calls it at the same point, process 0
+  alone claims (and writes), the others yield the path without touching it; all fail together if
+  process 0's claim fails."""
+  from hdt.agents import sharding  # here: rundir itself stays free of JAX
+  kw = dict(kind=kind, resume=resume, overwrite=overwrite, reuse=reuse, reads=reads, zoo_ok=zoo_ok, legacy=legacy)
+  if not sharding.several_processes():
+    with _claim(out, **kw) as path:
+      yield path
+    return
+  # Every process has checked ``out`` (read only) before it comes here; process 0 claims only once all
+  # have, so that none finds process 0's fresh claim in its way and refuses.
+  sharding.stop_together(None, f"checking {out}")
+  with contextlib.ExitStack() as held:
+    path = sharding.on_writer(lambda: held.enter_context(_claim(out, **kw)), f"claiming {out}")
+    yield Path(out).expanduser() if path is None else path
+
+
+@contextlib.contextmanager
+def _claim(out, kind: str = "run", resume: bool = False, overwrite: bool = False,
+           reuse: bool = False, reads=(), zoo_ok: bool = False, legacy=None) -> Iterator[Path]:
   path = check_claimable(out, kind, resume, overwrite, reuse, reads=reads, zoo_ok=zoo_ok, legacy=legacy)
   _clear_asides(path)
   before = {p.name for p in path.iterdir()} if path.is_dir() else None

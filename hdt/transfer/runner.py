@@ -168,7 +168,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
     run_dir = outputs[0][0]
     ts = history = best = None
     if run_dir is not None and source is not None and _same(source, run_dir):
-      ckpt.settle_state(run_dir)
+      sharding.on_writer(lambda: ckpt.settle_state(run_dir), f"settling {run_dir}")  # before any reads it
     if source is not None:
       ts, history, best = _resume(source, trainer, infos[0])
 
@@ -177,18 +177,26 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       if any(d is not None for d, _ in outputs) and (
           step // save_steps > (step - config.env_steps_per_chunk) // save_steps or step == config.total_env_steps):
         hist = {k: np.stack(v, axis=1) for k, v in hist.items()}
-        for p, (run_dir, _) in enumerate(outputs):
-          if run_dir is not None:
-            with interrupt.deferred():
+        ts = sharding.gathered(ts)  # the seeds of every process, for process 0 to save
+
+        def save():
+          for p, (run_dir, _) in enumerate(outputs):
+            if run_dir is not None:
               ckpt.save_state(run_dir, part(ts, p), part(hist, p), dict(infos[p], env_steps=step),
                               None if best is None else part(best, p))
+        with interrupt.deferred():
+          sharding.on_writer(save, f"saving the training state at env step {step}")
 
     interrupt.raise_if_interrupted()
     start = 0 if ts is None else int(np.max(jax.device_get(ts.env_steps)))
-    if not options.quiet:
+    quiet = options.quiet or not sharding.writes()  # several processes: process 0 reports
+    if not quiet:
       _device_hint(len(points) * S, stage.label)
+    if sharding.several_processes() and not options.quiet:  # each process says what it trains
+      print(f"{stage.label}: process {jax.process_index()} of {jax.process_count()} trains "
+            f"{_runs_text(sharding.local_runs(len(points) * S), seeds, len(points))}", file=sys.stderr, flush=True)
     progress = (options.progress or functools.partial(run_progress, start=start))(
-        config.total_env_steps, options.quiet, stage.label)
+        config.total_env_steps, quiet, stage.label)
     try:
       with counted_mujoco_warnings(options.quiet) as warned:
         res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
@@ -202,14 +210,15 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       raise sac_train.TrainingDiverged(str(e) + note, e.term, e.env_step, e.seeds) from None
     finally:
       getattr(progress, "close", lambda: None)()  # a live bar ends however training does
-    params = dict(res.params, **(stage.save_extra(res.state) if stage.save_extra else {}))
+    params = sharding.gathered(dict(res.params, **(stage.save_extra(res.state) if stage.save_extra else {})))
     results = []
     for p, (run_dir, _) in enumerate(outputs):
-      res_p = sac_train.RunResult(part(params, p), part(res.history, p), part(res.state, p),
+      res_p = sac_train.RunResult(part(params, p), part(res.history, p), None,  # the state is not written
                                   None if res.best is None else part(res.best, p))
       if run_dir is not None:
         with interrupt.deferred():  # a Ctrl-C here would leave some seeds unwritten
-          _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p)
+          sharding.on_writer(lambda: _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p),
+                             f"writing {run_dir}")
       source = None if run_dir is None else str(run_dir)
       results.append(RunResult(run_dir, res_p.params, res_p.history, cards[p].replace(source=source), res_p.best))
   return results
@@ -219,12 +228,28 @@ def _device_hint(runs: int, label: str) -> None:
   """One line when the runs cannot use every device (e.g. 3 seeds on a 2-core CPU's 2 devices)."""
   all_devices = jax.devices()
   devices, used = len(all_devices), sharding.seed_devices(runs)
+  processes = jax.process_count()
+  if processes > 1 and used == 1:
+    print(f"{label}: {runs} runs do not split evenly over the {processes} processes, so every process trains "
+          f"all of them (the same); a multiple of {processes} runs splits them")
+    return
   if runs > 1 and used < devices:
     lo = runs - runs % devices
     other = " or ".join(str(n) for n in (lo, lo + devices) if n > 0)
     cpu = (f" (or set JAX_NUM_CPU_DEVICES={runs}: faster for small-network LLs, slower for HLs; BENCHMARKS.md)"
            if all_devices[0].platform == "cpu" else "")
     print(f"{label}: {runs} runs split over {used} of the {devices} devices; {other} runs would use all of them{cpu}")
+
+
+def _runs_text(runs: list[int], seeds: list, points: int) -> str:
+  """``runs`` (indices point-major over grid points x seeds) as "seeds 0, 1" or "grid point 0 seeds 0, 1; ..."."""
+  S = len(seeds)
+  if points == 1:
+    return "seeds " + ", ".join(str(seeds[r]) for r in runs)
+  by_point: dict[int, list] = {}
+  for r in runs:
+    by_point.setdefault(r // S, []).append(seeds[r % S])
+  return "; ".join(f"grid point {p} seeds {', '.join(map(str, s))}" for p, s in by_point.items())
 
 
 @contextlib.contextmanager
