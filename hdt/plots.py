@@ -31,7 +31,56 @@ def learning_curves(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path, h
                     title: str = "", xlabel: str = "env steps of B", ylabel: str = "success") -> Path:
   """One line per method: the mean over seeds with a ±1 std band. ``series[name] = (x, y)`` with x of
   shape (T,) or (S, T) and y of shape (S, T); ``hline`` draws reference levels (e.g. zero-shot)."""
-  fig, ax = plt.subplots(figsize=(6, 4))
+  return panels([("curves", dict(series=series, hline=hline, title=title, xlabel=xlabel, ylabel=ylabel))], path)
+
+
+def heatmap(matrix: dict, path, title: str = "", xlabel: str = "HL trained on", ylabel: str = "LL of") -> Path:
+  """A zero-shot transfer matrix from :func:`hdt.transfer.evaluate.zero_shot_matrix` (or any matrix of
+  that form; ``xlabel`` / ``ylabel`` name its columns and rows). A cell whose mean is NaN is shown as
+  not run; ``matrix["paper"]`` may map a cell to the paper's number, printed under hdt's."""
+  return panels([("heatmap", dict(matrix=matrix, title=title, xlabel=xlabel, ylabel=ylabel))], path)
+
+
+def grouped_bars(bars: list[dict], path, title: str = "", ylabel: str = "success") -> Path:
+  """Bars of ``mean`` ± ``std`` grouped by ``group``, one colour per ``method``; a black tick at
+  ``paper`` where a bar has the paper's number (e.g. Table 2: plain vs aligned LL per transfer)."""
+  return panels([("bars", dict(bars=bars, title=title, ylabel=ylabel))], path)
+
+
+def panels(items: list[tuple[str, dict]], path, title: str = "", per_row: int = 3) -> Path:
+  """Several plots in one figure, ``per_row`` to a row: each item is ("curves", ``learning_curves``'
+  arguments), ("heatmap", ``heatmap``'s) or ("bars", ``grouped_bars``') without ``path``."""
+  draw = {"curves": _curves, "heatmap": _heatmap, "bars": _bars}
+  unknown = [kind for kind, _ in items if kind not in draw]
+  if unknown or not items:
+    raise ValueError(f"panels {unknown or items!r}: give one or more of {', '.join(draw)} with their arguments")
+  size = [_size(kind, kw) for kind, kw in items]
+  rows = [items[i:i + per_row] for i in range(0, len(items), per_row)]
+  width = max(sum(w for w, _ in size[i:i + per_row]) for i in range(0, len(items), per_row))
+  height = sum(max(h for _, h in size[i:i + per_row]) for i in range(0, len(items), per_row))
+  fig = plt.figure(figsize=(width, height))
+  grid = fig.add_gridspec(len(rows), max(len(r) for r in rows))
+  for i, (kind, kw) in enumerate(items):
+    draw[kind](fig, fig.add_subplot(grid[i // per_row, i % per_row]), **kw)
+  if title:
+    fig.suptitle(title)
+  fig.tight_layout()
+  return _save(fig, path)
+
+
+def _size(kind: str, kw: dict) -> tuple[float, float]:
+  """(width, height) in inches of one panel."""
+  if kind == "heatmap":
+    m = kw["matrix"]
+    return 1.6 * len(m["cols"]) + 2, 1.2 * len(m["rows"]) + 1.5
+  if kind == "bars":
+    groups = {b["group"] for b in kw["bars"]}
+    methods = {b["method"] for b in kw["bars"]}
+    return 1.1 * len(groups) * len(methods) + 2, 4
+  return 6, 4
+
+
+def _curves(fig, ax, series, hline=None, title="", xlabel="env steps of B", ylabel="success"):
   for name, (x, y) in series.items():
     y = np.atleast_2d(np.asarray(y, float))
     x = np.asarray(x, float)
@@ -45,37 +94,40 @@ def learning_curves(series: Mapping[str, tuple[np.ndarray, np.ndarray]], path, h
     ax.axhline(v, ls="--", color="purple", lw=1, label=f"{name} ({v:.3g})")
   ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
   ax.grid(alpha=0.3)
-  ax.legend(fontsize=8)
-  return _save(fig, path)
+  if ax.get_legend_handles_labels()[0]:
+    ax.legend(fontsize=8)
 
 
-def heatmap(matrix: dict, path, title: str = "", xlabel: str = "HL trained on", ylabel: str = "LL of") -> Path:
-  """A zero-shot transfer matrix from :func:`hdt.transfer.evaluate.zero_shot_matrix` (or any matrix of
-  that form; ``xlabel`` / ``ylabel`` name its columns and rows)."""
+def _heatmap(fig, ax, matrix, title="", xlabel="HL trained on", ylabel="LL of"):
   rows, cols = matrix["rows"], matrix["cols"]
-  mean = np.array([[matrix["cells"][(r, c)][0] for c in cols] for r in rows])
-  std = np.array([[matrix["cells"][(r, c)][1] for c in cols] for r in rows])
+  mean = np.array([[matrix["cells"][(r, c)][0] for c in cols] for r in rows], float)
+  std = np.array([[matrix["cells"][(r, c)][1] for c in cols] for r in rows], float)
   metric = next(iter(matrix["cells"].values()))[2]
-  fig, ax = plt.subplots(figsize=(1.6 * len(cols) + 2, 1.2 * len(rows) + 1.5))
-  im = ax.imshow(mean, cmap="viridis")
-  for i in range(len(rows)):
-    for j in range(len(cols)):
-      ax.text(j, i, f"{mean[i, j]:.3g}\n±{std[i, j]:.2g}", ha="center", va="center",
-              color="w" if mean[i, j] < mean.mean() else "k", fontsize=9)
+  paper = matrix.get("paper") or {}
+  limits = dict(vmin=0.0, vmax=1.0) if metric == "success" else {}  # success rates side by side on one scale
+  im = ax.imshow(np.ma.masked_invalid(mean), cmap="viridis", **limits)
+  mid = np.nanmean(mean) if np.isfinite(mean).any() else 0.0
+  for i, r in enumerate(rows):
+    for j, c in enumerate(cols):
+      text = f"{mean[i, j]:.3g}\n±{std[i, j]:.2g}" if np.isfinite(mean[i, j]) else "not run"
+      if paper.get((r, c)):
+        text += f"\n(paper {paper[(r, c)]})"
+      ax.text(j, i, text, ha="center", va="center", fontsize=8,
+              color="k" if not np.isfinite(mean[i, j]) or mean[i, j] >= mid else "w")
   ax.set_xticks(range(len(cols)), cols)
   ax.set_yticks(range(len(rows)), rows)
   ax.set(xlabel=xlabel, ylabel=ylabel, title=title or f"{matrix['task']}: {metric}")
   fig.colorbar(im, ax=ax, label=metric)
-  return _save(fig, path)
 
 
-def grouped_bars(bars: list[dict], path, title: str = "", ylabel: str = "success") -> Path:
-  """Bars of ``mean`` ± ``std`` grouped by ``group``, one colour per ``method``; a black tick at
-  ``paper`` where a bar has the paper's number (e.g. Table 2: plain vs aligned LL per transfer)."""
+def _bars(fig, ax, bars, title="", ylabel="success"):
   groups = list(dict.fromkeys(b["group"] for b in bars))
   methods = list(dict.fromkeys(b["method"] for b in bars))
+  ax.set(title=title, ylabel=ylabel)
+  if not bars:  # a table part with no cell run yet
+    ax.text(0.5, 0.5, "not run", ha="center", va="center", transform=ax.transAxes)
+    return
   width = 0.8 / len(methods)
-  fig, ax = plt.subplots(figsize=(1.1 * len(groups) * len(methods) + 2, 4))
   for j, m in enumerate(methods):
     mine = [(groups.index(b["group"]), b) for b in bars if b["method"] == m]
     x = np.array([i for i, _ in mine]) + (j - (len(methods) - 1) / 2) * width
@@ -85,10 +137,8 @@ def grouped_bars(bars: list[dict], path, title: str = "", ylabel: str = "success
         ax.plot([xi - 0.4 * width, xi + 0.4 * width], [b["paper"]] * 2, color="k", lw=2)
   ax.plot([], [], color="k", lw=2, label="paper")
   ax.set_xticks(range(len(groups)), groups, fontsize=8)
-  ax.set(title=title, ylabel=ylabel)
   ax.grid(alpha=0.3, axis="y")
   ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: never over a bar
-  return _save(fig, path)
 
 
 def _static_boxes(model: mujoco.MjModel):
