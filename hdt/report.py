@@ -26,6 +26,15 @@ def markdown_table(header: list[str], rows: list[list]) -> str:
   return "\n".join(lines)
 
 
+def write_csv(path, fieldnames, rows) -> Path:
+  """``rows`` (dicts) as a CSV with header ``fieldnames``, written atomically."""
+  with atomic.open_atomic(atomic.make_dirs(Path(path).parent) / Path(path).name, "w", newline="") as f:
+    w = csv.DictWriter(f, fieldnames=list(fieldnames))
+    w.writeheader()
+    w.writerows(rows)
+  return Path(path)
+
+
 def _damaged(path: Path, what: str) -> ValueError:
   return ValueError(f"{path} is damaged ({what}): re-run training to write it again, or restore it from a backup")
 

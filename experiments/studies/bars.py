@@ -15,12 +15,10 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from experiments.common import write_csv_atomic  # noqa: E402
-from hdt import plots  # noqa: E402
+from hdt import plots
+from hdt.report import write_csv
 
 FIELDS = ("group", "method", "mean", "std", "paper", "source")
 
@@ -62,7 +60,7 @@ def main(argv=None):
   args = p.parse_args(argv)
   bars = [read_bar(s) for s in args.bars]
   out = Path(args.out)
-  write_csv_atomic(out.with_suffix(".csv"), FIELDS, ({k: ("" if b[k] is None else b[k]) for k in FIELDS} for b in bars))
+  write_csv(out.with_suffix(".csv"), FIELDS, ({k: ("" if b[k] is None else b[k]) for k in FIELDS} for b in bars))
   png = plots.grouped_bars(bars, out.with_suffix(".png"), title=args.title, ylabel=args.ylabel)
   print(f"wrote {png} and {out.with_suffix('.csv')}")
 

@@ -10,15 +10,13 @@ from __future__ import annotations
 
 import argparse
 import csv
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from experiments.common import write_csv_atomic  # noqa: E402
-from hdt import plots  # noqa: E402
-from hdt.report import read_eval_curves  # noqa: E402
+from hdt import plots
+from hdt.report import write_csv
+from hdt.report import read_eval_curves
 
 
 def from_csv(path: str, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -56,7 +54,7 @@ def main(argv=None):
   plots.learning_curves(series, out.with_suffix(".png"), hline=hline, title=a.title, xlabel=a.xlabel,
                         ylabel=a.metric)
   keys = list(dict.fromkeys(k for r in rows for k in r))
-  write_csv_atomic(out.with_suffix(".csv"), keys, rows)
+  write_csv(out.with_suffix(".csv"), keys, rows)
   print(out.with_suffix(".png"), out.with_suffix(".csv"))
 
 

@@ -12,18 +12,17 @@ from pathlib import Path
 import numpy as np
 
 from hdt import envs
+from hdt.transfer.evaluate import hl_rollouts
 from hdt.transfer.hierarchy import HighLevelEnv
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 import scripted  # noqa: E402  (the scripted controllers of tests/test_fidelity.py)
-from experiments import common as C  # noqa: E402
 
 
 def deepest(high: str, low: str, episodes: int = 16):
   record = lambda s, n: (n.obs_hi, n.metrics["success"], n.done)
   rows = []
-  for i, (_, (hi, succ, done)) in enumerate(C.hl_rollouts(high, low, record, episodes)):
+  for i, (_, (hi, succ, done)) in enumerate(hl_rollouts(high, low, record, episodes)):
     alive = np.cumsum(done, 1) == 0  # before the episode's end (its last state is the next reset's)
     y = np.where(alive, hi[..., 1], np.inf)
     j = np.argmin(y, 1)

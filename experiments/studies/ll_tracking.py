@@ -10,19 +10,17 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run as a script or loaded by path
-from experiments import common as C  # noqa: E402
+from hdt.transfer.evaluate import hl_rollouts
 
 
 def track(high: str, low: str, task: str, episodes: int = 16, key: int = 1) -> list[dict]:
   """Per LL seed: tracking statistics of ``high``'s deterministic episodes over ``low`` (seed i of each)."""
   record = lambda s, n: (s.obs_hi, n.metrics["sub_goal_dist"], n.metrics["ll_steps"], n.metrics["success"], n.done)
   rows = []
-  for i, (env, (hi, dist, ll_steps, succ, done)) in enumerate(C.hl_rollouts(high, low, record, episodes, key)):
+  for i, (env, (hi, dist, ll_steps, succ, done)) in enumerate(hl_rollouts(high, low, record, episodes, key)):
     live = np.cumsum(done, 1) - done == 0  # HL steps up to and including the episode's last
     block = hi[..., 2:4]
     moved = np.linalg.norm(np.where(live[..., None], block - block[:, :1], 0.0), axis=-1).max(1)

@@ -12,17 +12,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 from pathlib import Path
 
 import jax
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from experiments.common import write_csv_atomic  # noqa: E402
-from hdt import plots  # noqa: E402
-from hdt.transfer import checkpoint as ckpt  # noqa: E402
-from hdt.transfer import evaluate as ev  # noqa: E402
+from hdt import plots
+from hdt.report import write_csv
+from hdt.transfer import checkpoint as ckpt
+from hdt.transfer import evaluate as ev
 
 
 def cross(high: str, low: str, task: str, episodes: int) -> np.ndarray:
@@ -66,7 +64,7 @@ def main(argv=None):
                   xlabel=f"seed of the HL ({args.high})", ylabel=f"seed of the LL ({name})")
     print(f"{name}: mean {np.mean(m):.3f}; per LL seed {np.round(m.mean(0), 3).tolist()}; "
           f"per HL seed {np.round(m.mean(1), 3).tolist()}", flush=True)
-  write_csv_atomic(Path(args.out + ".csv"), ("low", "hl_seed", "ll_seed", "success"), rows)
+  write_csv(Path(args.out + ".csv"), ("low", "hl_seed", "ll_seed", "success"), rows)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
@@ -234,3 +234,23 @@ def trajectory(policy: Policy, task: str | None = None, seed_index: int = 0, key
   return dict(xy=per_ll(xy), block=per_ll(block), goals=goals[:end], rewards=reward[:end],
               task=task or policy.card.task, agent=policy.agent, qpos=per_ll(qpos),
               step_goals=np.repeat(goals[:end], active.shape[1], axis=0)[keep], model=env.env.mj_model)
+
+
+def hl_rollouts(high, low, record: Callable, episodes: int = 16, key: int = 1):
+  """For each seed of ``compose(high, low)``: ``(env, arrays)``, where ``arrays`` stacks
+  ``record(state, next_state)`` over ``episodes`` deterministic HL episodes (leading axes
+  [episode, HL step], one full horizon each: steps after an episode's end belong to the next one)."""
+  p = compose(high, low)
+  for i in range(p.num_seeds):
+    at = lambda t: jax.tree.map(lambda x: x[i], t)
+    env = _env_for(p, None, "auto", at(p.low_params), low_obs_norm=at(p.low_obs_norm))
+    act, params = p.card.policy_fn(at(p.obs_norm)), at(p.params)
+
+    def episode(k):
+      def step(s, _):
+        n = env.step(s, act(params, s.obs))
+        return n, record(s, n)
+      return jax.lax.scan(step, env.reset(k), None, length=env.horizon)[1]
+
+    keys = jax.random.split(jax.random.PRNGKey(key), episodes)
+    yield env, jax.tree.map(np.asarray, jax.jit(jax.vmap(episode))(keys))
