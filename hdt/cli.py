@@ -9,7 +9,7 @@
   hdt eval --high RUN --low RUN --task waypoint   (repeat --high/--low NAME=RUN for a matrix)
   hdt sweep low --agent point --grid actor_lr=1e-4,3e-4
   hdt sweep finetune --high RUN --low RUN --task waypoint --grid kl_weight=0,1,10
-  hdt reproduce table1 --preset cpu               paper tables/figures (experiments/)
+  hdt reproduce table1 --preset paper             a paper table/figure: zoo, runs in --out, what is missing
   hdt report RUN                                  Markdown + PNGs of a run directory
   hdt render --policy zoo:arm3/low --out arm3.mp4 video of a policy (or --high RUN --low RUN --task T)
   hdt quickstart                                  minutes-scale tour on a CPU
@@ -34,7 +34,6 @@ import argparse
 import ast
 import contextlib
 import dataclasses
-import importlib.util
 import itertools
 import json
 import time
@@ -62,8 +61,6 @@ def __getattr__(name):
   raise AttributeError(name)
 
 
-REPO = Path(__file__).resolve().parents[1]
-EXPERIMENTS = ("table1", "table2", "table3", "fig5", "fig6")
 AGENT_HELP = ("point, ant, ant3, ant2, quadruped, arm_point, arm2, arm3, arm4, or the path of a robot "
               "MJCF file that follows ROBOTS.md (e.g. examples/robots/hexapod.xml)")
 
@@ -294,13 +291,19 @@ def build_parser() -> argparse.ArgumentParser:
   _common(sw, "sweep directory, one run per grid point (default: runs/sweep-<level>)")
   sw.add_argument("--overwrite", action="store_true", help="replace an existing sweep in --out as a whole")
 
-  rp = sub.add_parser("reproduce", help="re-run a paper table/figure (experiments/NAME.py)", formatter_class=fmt)
-  rp.add_argument("name", choices=EXPERIMENTS)
-  rp.add_argument("--results-md", type=Path, default=REPO / "RESULTS.md",
-                  help="Markdown file whose section for NAME/preset is replaced (not for smoke)")
-  rp.add_argument("--no-results-md", action="store_true", help="do not touch the results Markdown")
-  _common(rp, "directory of the experiment's runs, its table (NAME_PRESET.md, .json) and figures "
-              "(default: runs/NAME-PRESET)")
+  from hdt.paper import NAMES
+  rp = sub.add_parser("reproduce", help="a paper table or figure: zoo entries (paper preset) and the runs in --out "
+                      "reused, what is missing trained, NAME_PRESET.md/.json/.png written", formatter_class=fmt)
+  rp.add_argument("name", choices=NAMES)
+  rp.add_argument("--only", action="append", default=[], metavar="PATTERN",
+                  help="cells to run, by id (part/row/column, e.g. 'waypoint/pm/*', or a part's name; repeatable); "
+                       "the others keep their earlier numbers, or show as not selected")
+  rp.add_argument("--max-env-steps", type=_env_steps_limit, default="preset", metavar="N|all",
+                  help="train a missing run only if it costs at most N env steps of its robot (an HL: decisions "
+                       "times k); the others are listed as not run, with the command that trains them (default: "
+                       "the preset's: no limit at smoke and cpu, 1000000 at paper)")
+  rp.add_argument("--dry-run", action="store_true", help="print the plan (zoo, reuse, train, not run) and stop")
+  _common(rp, "directory of the table's runs, its NAME_PRESET.md, .json and .png (default: runs/NAME-PRESET)")
 
   rep = sub.add_parser("report", help="Markdown summary, learning curves and a trajectory of a run",
                        formatter_class=fmt)
@@ -687,51 +690,27 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> l
   return rows
 
 
-def load_experiment(name: str):
-  path = REPO / "experiments" / f"{name}.py"
-  if not path.exists():
-    raise CLIError(f"experiment {name!r}: {path} not found (hdt reproduce needs a source checkout, "
-                   f"installed with `pip install -e .`)")
-  if str(REPO) not in sys.path:  # experiments import their shared helpers
-    sys.path.insert(0, str(REPO))
-  spec = importlib.util.spec_from_file_location(f"experiments.{name}", path)
-  mod = importlib.util.module_from_spec(spec)
-  spec.loader.exec_module(mod)
-  return mod
-
-
-def update_results_md(path: Path, key: str, text: str) -> None:
-  """Replaces (or appends) the block between ``<!-- hdt:KEY -->`` markers."""
-  start, end = f"<!-- hdt:{key} -->", f"<!-- /hdt:{key} -->"
-  block = f"{start}\n{text.strip()}\n{end}"
-  old = path.read_text() if path.exists() else "# Results\n"
-  if start in old and end in old:
-    new = old[:old.index(start)] + block + old[old.index(end) + len(end):]
-  else:
-    new = old.rstrip() + "\n\n" + block + "\n"
-  from hdt import atomic
-  atomic.write_text(path, new)
+def _env_steps_limit(text: str):
+  """--max-env-steps: a number of env steps, "all" (no limit, None) or "preset"."""
+  if text in ("all", "preset"):
+    return None if text == "all" else text
+  if not text.isdigit():
+    raise argparse.ArgumentTypeError(f"expected a number of env steps or 'all', got {text!r}")
+  return int(text)
 
 
 def cmd_reproduce(args) -> int:
-  from hdt.transfer import rundir
-  legacy = lambda path: rundir.holds_only_runs(path, lambda name: name.startswith(f"{args.name}_"))
-  out = _out_dir(args, f"{args.name}-{args.preset}", kind="experiment", reuse=True, legacy=legacy)
-  mod = load_experiment(args.name)
-  if args.preset not in mod.PRESETS:
-    raise CLIError(f"{args.name} has no preset {args.preset!r}; presets: {', '.join(mod.PRESETS)}")
+  from hdt import paper
+  from hdt.paper.table import legacy
+  out = _out_dir(args, f"{args.name}-{args.preset}", kind="experiment", reuse=True, legacy=legacy(args.name))
+  seeds = None if args.seeds is None else _seeds(args)
   t0 = time.time()
-  from experiments.common import claim_out, publish  # importable: load_experiment put the checkout on sys.path
-  with claim_out(out, args.name):  # the runs, tables and figures
-    result = mod.run(args.preset, out, seeds=args.seeds, quiet=args.quiet)
-    text = mod.markdown(result)
-    print(text)
-    written = publish(args.name, args.preset, out, text)
-  print(f"\n{args.name} ({args.preset}) took {(time.time() - t0) / 60:.1f} min; runs and results in {out}: "
-        + ", ".join(p.name for p in written))
-  if args.preset != "smoke" and not args.no_results_md:
-    update_results_md(args.results_md, f"{args.name}:{args.preset}", text)
-    print(f"updated {args.results_md}")
+  done = paper.reproduce(args.name, args.preset, out, seeds=seeds, only=args.only, max_env_steps=args.max_env_steps,
+                         quiet=args.quiet, dry_run=args.dry_run)
+  print(done.markdown)
+  if not args.dry_run:
+    print(f"{args.name} ({args.preset}) took {(time.time() - t0) / 60:.1f} min; written: "
+          + ", ".join(str(p) for p in done.files))
   return 0
 
 

@@ -343,7 +343,7 @@ BAD_CLI = {
     "--out holding only .cache.tmp": ([*LOW, "--out", "{cache_only}", "--overwrite"],
                                       "is not an hdt directory and not empty (it holds .cache.tmp/)"),
     "--out a link to a run": ([*LOW, "--out", "{link_to_low}", "--overwrite"], "is a symbolic link"),
-    "reproduce into a user dir": (["reproduce", "table1", "--preset", "smoke", "--no-results-md", "--out",
+    "reproduce into a user dir": (["reproduce", "table1", "--preset", "smoke", "--out",
                                    "{user_tables}"], "is not an hdt directory and not empty (it holds table1_smoke.md)"),
     "report of a user dir": (["report", "{user_meta}"], "is not an hdt directory"),
     "report of a zoo entry": (["report", "{zoo}/point/low"], "lies in the model zoo"),

@@ -1,12 +1,10 @@
 """The one table of defaults (hdt.transfer.configs): budgets refused rather than rounded, unknown tasks
-refused, the CLI and experiments/ build the same configs, tasks own their metrics, and
-``hdt reproduce --out`` publishes its table and figures. No training: every test takes seconds."""
+refused, the CLI, the Python API and hdt reproduce build the same configs (tests/test_paper.py), tasks own
+their metrics. No training: every test takes seconds."""
 
 import dataclasses
-import json
 
 import jax
-import numpy as np
 import pytest
 
 from hdt import cli
@@ -76,35 +74,12 @@ def test_defaults_are_data_on_agents_and_tasks():
   assert configs.finetune_params("push1") == dict(kl_weight=1.0, lr=1e-2)
 
 
-# -- one table for the CLI and experiments/ -------------------------------------------------------
+# -- one table for the CLI, the Python API and hdt reproduce (tests/test_paper.py) -------------------
 def _cli_config(level, preset, agent=None, task=None):
   argv = {"low": ["train", "low", "--agent", agent], "full": ["train", "full", "--agent", agent, "--task", task],
           "high": ["train", "high", "--task", task, "--low", "unused"]}[level]
   args = cli.build_parser().parse_args(argv + ["--preset", preset])
   return cli.sac_config(args, level, agent, task)
-
-
-@pytest.mark.parametrize("name", ["table1", "table2", "table3", "fig5", "fig6"])
-def test_presets_agree_between_cli_and_experiments(name):
-  mod = cli.load_experiment(name)
-  from experiments import common as C
-  for preset in mod.PRESETS:
-    pr = C.experiment_preset(mod.PRESETS, preset)
-    assert pr["sac"] in configs.PRESETS
-    study = getattr(mod, "STUDY", None)
-    agents = [study.a, study.b] if study else [a for row in getattr(mod, "ROWS", {}).values() for a in row[:2]] or mod.AGENTS
-    tasks = [study.task] if study else sorted({r[2] for r in mod.ROWS.values()}) if hasattr(mod, "ROWS") else ["waypoint", "maze", "push1"]
-    for agent in agents:
-      assert C.low_cfg(agent, pr) == _cli_config("low", pr["sac"], agent=agent), (name, preset, agent)
-    for task in tasks:
-      assert C.high_cfg(task, None, pr) == _cli_config("high", pr["sac"], task=task), (name, preset, task)
-
-
-def test_ant_ll_budget_is_the_same_in_reproduce_and_train():
-  fig6 = cli.load_experiment("fig6")
-  from experiments import common as C
-  pr = C.experiment_preset(fig6.PRESETS, "cpu")
-  assert C.low_cfg("ant", pr).total_env_steps == _cli_config("low", "cpu", agent="ant").total_env_steps == 100_000
 
 
 def test_paper_preset_runs_the_authors_sb2_sac_and_the_others_twin_q():
@@ -124,7 +99,7 @@ def test_paper_preset_runs_the_authors_sb2_sac_and_the_others_twin_q():
 
 def test_align_discriminator_defaults_come_from_a_in_cli_api_and_experiments():
   """One place for the discriminator's defaults: the paper's values by A (configs.disc_config), whether the
-  alignment is started from the CLI, the API or experiments/ (the CLI once used the class's nav values)."""
+  alignment is started from the CLI, the API or hdt reproduce (the CLI once used the class's nav values)."""
   from hdt.transfer.align import align_stage
   parse = lambda *extra: cli.build_parser().parse_args(["align", "--agent", "arm3", "--imitate", "x", *extra])
   for a, want in (("arm_point", (3e-4, 0.4, "online")), ("arm3", (5e-4, 0.4, "online")), ("point", (2e-4, 0.3, "offline"))):
@@ -171,40 +146,3 @@ def test_kl_term_is_logged_as_kl():
   m = metrics([kl_plugin(networks.policy_apply, networks.policy_init(jax.random.PRNGKey(1)), 1.0, 10)])
   assert {"kl", "kl_weight"} <= set(m) and "regularizer" not in m
   assert not {"kl", "kl_weight", "regularizer"} & set(metrics([]))
-
-
-# -- hdt reproduce --out ------------------------------------------------------------------------------
-def test_reproduce_out_writes_table_and_figures(tmp_path, monkeypatch, capsys):
-  """The experiment's own run is stubbed (training is covered by test_experiments' slow test); the
-  CLI's part is checked: table (.md, .json) and figures land in --out; smoke leaves RESULTS.md alone."""
-  from experiments import common as C
-  from hdt.plots import learning_curves
-  monkeypatch.setattr(C, "RESULTS", tmp_path / "results")
-  fig5 = cli.load_experiment("fig5")
-
-  def run(preset, out, seeds=None, quiet=False):
-    x = np.array([[0.0, 64.0]])
-    c = {"env_steps": x, "success": np.array([[0.0, 0.5]]), "return": np.array([[-1.0, 2.0]])}
-    entry = dict(metric="success", mean=0.5, std=0.0, per_seed=[0.5], episodes=2)
-    png = learning_curves({"finetune": (x, c["success"])}, C.RESULTS / f"fig5_{preset}.png", title="stub")
-    result = dict(experiment="fig5", preset=preset, command=C.command("fig5", preset), seeds=1, a="arm_point",
-                  b="arm3", task="push1", k=35, kl=1.0, lr=0.01, hl_steps=64, b_env_steps=2240,
-                  zero_shot=entry, png=str(png),
-                  methods={"finetune": dict(entry, csv=C.write_curve_csvs(C.RESULTS / f"fig5_{preset}", "finetune", c))})
-    C.write_result("fig5", preset, result)
-    return result
-
-  monkeypatch.setattr(fig5, "run", run)
-  monkeypatch.setattr(cli, "load_experiment", lambda name: fig5)
-  results_md = tmp_path / "RESULTS.md"
-  out = tmp_path / "out"
-  assert cli.main(["reproduce", "fig5", "--preset", "smoke", "--out", str(out), "--quiet",
-                   "--results-md", str(results_md)]) == 0
-  assert json.loads((out / "fig5_smoke.json").read_text())["methods"]["finetune"]["mean"] == 0.5
-  assert "| zero-shot |" in (out / "fig5_smoke.md").read_text()
-  assert (out / "fig5_smoke.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-  assert (out / "fig5_smoke" / "finetune_seed0.csv").exists()
-  assert not results_md.exists()  # smoke: RESULTS.md untouched
-  assert cli.main(["reproduce", "fig5", "--preset", "cpu", "--out", str(out), "--quiet",
-                   "--results-md", str(results_md)]) == 0
-  assert (out / "fig5_cpu.md").exists() and "<!-- hdt:fig5:cpu -->" in results_md.read_text()

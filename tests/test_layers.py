@@ -11,9 +11,10 @@ HDT = Path(__file__).resolve().parents[1] / "hdt"
 
 # package -> packages it never imports (DESIGN.md's layer table)
 NEVER = {
-    "hdt.envs": ("hdt.agents", "hdt.transfer", "hdt.cli", "hdt.report", "hdt.render"),
-    "hdt.agents": ("hdt.transfer", "hdt.cli", "hdt.report", "hdt.render"),
-    "hdt.transfer": ("hdt.cli", "hdt.report", "hdt.render", "hdt.plots"),
+    "hdt.envs": ("hdt.agents", "hdt.transfer", "hdt.cli", "hdt.report", "hdt.render", "hdt.paper"),
+    "hdt.agents": ("hdt.transfer", "hdt.cli", "hdt.report", "hdt.render", "hdt.paper"),
+    "hdt.transfer": ("hdt.cli", "hdt.report", "hdt.render", "hdt.plots", "hdt.paper"),
+    "hdt.paper": ("hdt.cli", "hdt.render"),  # the CLI is a thin layer over it
 }
 LEAVES = ("hdt.version", "hdt.atomic", "hdt.interrupt", "hdt.progress", "hdt.cache", "hdt.plots",
           "hdt.transfer.names")  # import no hdt module but hdt.atomic

@@ -1,0 +1,34 @@
+"""Figure 6: finetuning from the PM on navigation: Ant Waypoint, Ant Maze End, Ant Maze Sample and
+Quadruped Maze Sample. Per panel: the PM's HL (Maze: trained on Maze Sample) over B's LL zero-shot,
+then KL finetuning (Waypoint β 1, lr 0.01; Maze β 0.01, lr 1e-3, annealed over the first half), plain
+finetuning, B's HL from scratch and Full, for the same env steps of B. Maze End finetunes with the
+goal always at the maze's end, as the paper."""
+
+from __future__ import annotations
+
+from hdt.paper.runs import High, Low, Preset
+from hdt.paper.table import Part, Table, finetune_part
+
+PM_LOW = Low("point", zoo="point/low")
+ZOO_LOW = {"ant": "ant/low_250k", "quadruped": "quadruped/low_500k"}
+PM_HIGH = {"waypoint": High("waypoint", PM_LOW, zoo="point/waypoint"), "maze": High("maze", PM_LOW, zoo="point/maze")}
+# name: (B, task, options, title, the zero-shot level the paper's Table 1 gives)
+PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 ± 39"),
+          "ant_maze_end": ("ant", "maze", (("goal", "end"),), "Ant Maze End (success)", ".30 ± .08"),
+          "ant_maze_sample": ("ant", "maze", (("goal", "sample"),), "Ant Maze Sample (success)", ".62 ± .04"),
+          "quadruped_maze_sample": ("quadruped", "maze", (("goal", "sample"),), "Quadruped Maze Sample (success)",
+                                    ".78 ± .08")}
+# What the paper says of the curves (its numbers are curves only)
+WORDS = {"finetune_kl": "above plain finetuning (modest on Maze)", "finetune": "above HL scratch",
+         "full": "unsuccessful (no hierarchy)"}
+
+
+def parts(pr: Preset) -> tuple[Part, ...]:
+  return tuple(finetune_part(name, title, PM_HIGH[task], Low(b, zoo=ZOO_LOW.get(b)), task, pr, options,
+                             paper=dict(WORDS, zero_shot=zero))
+               for name, (b, task, options, title, zero) in PANELS.items())
+
+
+TABLE = Table("fig6", "Figure 6: finetuning from the PM on navigation", parts,
+              note="Each method gets the same env steps of B: HL decisions times B's k for the hierarchical "
+                   "ones, env steps for Full; curves are the runs' periodic evaluations.")
