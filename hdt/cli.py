@@ -367,10 +367,11 @@ def _options(args, out: Path, seeds: int):
 
 def sac_config(args, level: str, agent=None, task=None, **extra) -> SACConfig:
   """The SACConfig a parsed training command (``build_parser().parse_args(...)``) asks for: the
-  ``--preset``'s config of ``level`` for ``agent`` / ``task``, with ``extra`` and the command's
-  SAC options applied."""
+  ``--preset``'s config of ``level`` for ``agent`` / ``task`` (``paper`` with MJX on a GPU: the
+  accelerator throughput of the defaults table), with ``extra`` and the command's SAC options applied."""
   _import_hdt()
-  return configs.config(level, args.preset, agent=agent, task=task, **(extra | _overrides(args, SACConfig, "")))
+  return configs.config(level, args.preset, agent=agent, task=task, backend=getattr(args, "backend", None),
+                        **(extra | _overrides(args, SACConfig, "")))
 
 
 def _check_agent_task(agent=None, task=None):

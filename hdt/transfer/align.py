@@ -76,7 +76,7 @@ def align_stage(agent: str, imitate: AlignSpec | str | Path, config: SACConfig |
   params_a, card_a, fn_a = load_low(spec.imitate, spec.imitate_seed, spec.imitate_params)
   disc = configs.disc_config(card_a.agent) if spec.disc is None else spec.disc
   env = make(agent, "reach", backend=backend, **env_overrides)
-  config = configs.low_config(agent) if config is None else config
+  config = configs.stage_default("low", backend, agent) if config is None else config
   card_a.check_imitated_by(PolicyCard.from_env(env, "low", config, env_overrides=env_overrides))
   tau_scale = float(card_a.delta_max or 1.0) if disc.scale_inputs else 1.0
   if disc.data != "fixed":

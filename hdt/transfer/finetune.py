@@ -222,8 +222,8 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
   a_vnet = "v" in a_params["q"]  # A ran SB2's SAC (SACConfig.value_net)
   a_ln = bool(card_a.sac.get("critic_layer_norm", False))
   if config is None:
-    config = configs.finetune_config(task, hidden_sizes=card_a.hidden_sizes, normalize_observations=a_norm,
-                                     value_net=a_vnet, critic_layer_norm=a_ln)
+    config = configs.stage_default("finetune", backend, task=task, hidden_sizes=card_a.hidden_sizes,
+                                   normalize_observations=a_norm, value_net=a_vnet, critic_layer_norm=a_ln)
   if spec.init == "sac" and config.value_net != a_vnet:
     raise ckpt.CheckpointError(f"{high} was trained with value_net={a_vnet} and finetuning starts from its "
                                f"critics: pass --value-net {a_vnet} (or init='policy')")

@@ -73,7 +73,7 @@ def low_stage(agent: str, config: SACConfig | None = None, backend: str = "auto"
   configs.check_config(config, allow_none=True)
   check_env_overrides(env_overrides, agent, "reach")
   env = make(agent, "reach", backend=backend, **env_overrides)
-  config = configs.low_config(agent) if config is None else config
+  config = configs.stage_default("low", backend, agent) if config is None else config
   return Stage(env, config, PolicyCard.from_env(env, "low", config, env_overrides=env_overrides), f"low {agent}")
 
 
@@ -110,7 +110,7 @@ def high_stage(task: str, low: LowRef | str | Path, config: SACConfig | None = N
   configs.check_config(config, allow_none=True)
   check_env_overrides(task_overrides, task=task)
   env, low = high_env_with_low(task, low, backend, k=k, **task_overrides)
-  config = configs.high_config(task) if config is None else config
+  config = configs.stage_default("high", backend, task=task) if config is None else config
   card = PolicyCard.from_env(env, "high", config, low=low, task_overrides=task_overrides)
   return Stage(env, config, card, f"high {task}", save_extra=sac_extras)
 
@@ -134,6 +134,6 @@ def full_stage(agent: str, task: str, config: SACConfig | None = None, backend: 
   configs.check_config(config, allow_none=True)
   check_env_overrides(env_overrides, agent, task)
   env = make(agent, task, backend=backend, **env_overrides)
-  config = configs.full_config(agent, task) if config is None else config
+  config = configs.stage_default("full", backend, agent, task) if config is None else config
   card = PolicyCard.from_env(env, "full", config, env_overrides=env_overrides)
   return Stage(env, config, card, f"full {agent}/{task}")
