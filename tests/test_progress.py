@@ -1,5 +1,5 @@
 """A run's progress: one line per update in a log (the format scripts parse), a live bar on a
-terminal, a line per tenth of the run in Jupyter without widgets; rate and ETA of this process only."""
+terminal, one bar redrawn in place at most once a second in Jupyter; rate and ETA of this process only."""
 
 import io
 
@@ -35,14 +35,53 @@ def test_a_terminal_gets_a_live_bar_that_ends_with_the_run(capsys):
   assert capsys.readouterr().err == ""  # nothing line by line
 
 
-def test_jupyter_without_widgets_gets_a_line_per_tenth(monkeypatch, capsys):
-  monkeypatch.setattr(progress.importlib.util, "find_spec", lambda name: None)  # no ipywidgets
+class _Handle:
+  """IPython's DisplayHandle: what the notebook shows."""
+
+  def __init__(self, shown):
+    self.shown = [shown]
+
+  def update(self, shown):
+    self.shown.append(shown)
+
+
+def test_a_notebook_gets_one_rich_bar_redrawn_in_place_at_most_once_a_second(monkeypatch, capsys):
+  import IPython.display
+  handles, clock = [], {"now": 0.0}
+  monkeypatch.setattr(IPython.display, "display", lambda obj, display_id: handles.append(_Handle(obj)) or handles[-1])
+  monkeypatch.setattr(progress.time, "perf_counter", lambda: clock["now"])
   show = progress.RunProgress(1000, label="high", console=_console(force_jupyter=True))
-  assert show.mode == "tenths"
-  for step in range(10, 1001, 10):  # 100 chunks
+  assert show.mode == "notebook"
+  for step in range(10, 1001, 10):  # 100 chunks, 0.1 s each: 10 s
+    clock["now"] += 0.1
+    show(step, {"eval/return": [2.0]})
+  show.close()
+  assert len(handles) == 1 and capsys.readouterr().err == ""  # one output, no lines
+  shown = handles[0].shown
+  assert 10 <= len(shown) <= 12  # the first, about one a second, the last
+  last = shown[-1]._repr_mimebundle_([], [])
+  assert "high" in last["text/plain"] and "1000/1000" in last["text/plain"] and "return=2" in last["text/plain"]
+  assert last["text/html"].startswith("<pre") and "1000/1000" in last["text/html"]
+
+
+def test_a_run_that_stops_early_leaves_its_last_step_in_the_notebook(monkeypatch):
+  import IPython.display
+  handles = []
+  monkeypatch.setattr(IPython.display, "display", lambda obj, display_id: handles.append(_Handle(obj)) or handles[-1])
+  show = progress.RunProgress(1000, label="low", console=_console(force_jupyter=True))
+  show(100, {})
+  show(200, {})  # within the second: not drawn yet
+  show.close()  # e.g. training diverged: the bar still ends at 200
+  assert "200/1000" in handles[0].shown[-1]._repr_mimebundle_([], [])["text/plain"]
+
+
+def test_without_a_kernel_to_redraw_in_a_forced_notebook_it_falls_back_to_lines(monkeypatch, capsys):
+  import IPython.display
+  monkeypatch.setattr(IPython.display, "display", lambda obj, display_id: None)  # what IPython gives outside a kernel
+  show = progress.RunProgress(100, label="low", console=_console(force_jupyter=True))
+  for step in (50, 100):
     show(step, {})
-  lines = capsys.readouterr().err.splitlines()
-  assert len(lines) == 11 and lines[-1].startswith("high [####################] 1000/1000 steps")
+  assert show.mode == "lines" and capsys.readouterr().err.count("low [") == 1  # the second update as a line
 
 
 def test_quiet_shows_nothing(capsys):
