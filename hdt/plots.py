@@ -80,7 +80,7 @@ def _size(kind: str, kw: dict) -> tuple[float, float]:
   return 6, 4
 
 
-def _curves(fig, ax, series, hline=None, title="", xlabel="env steps of B", ylabel="success"):
+def _curves(fig, ax, series, hline=None, title="", xlabel="env steps of B", ylabel="success", ylim=None):
   for name, (x, y) in series.items():
     y = np.atleast_2d(np.asarray(y, float))
     x = np.asarray(x, float)
@@ -93,6 +93,8 @@ def _curves(fig, ax, series, hline=None, title="", xlabel="env steps of B", ylab
   for name, v in (hline or {}).items():
     ax.axhline(v, ls="--", color="purple", lw=1, label=f"{name} ({v:.3g})")
   ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
+  if ylim is not None:
+    ax.set_ylim(*ylim)
   ax.grid(alpha=0.3)
   if ax.get_legend_handles_labels()[0]:
     ax.legend(fontsize=8)

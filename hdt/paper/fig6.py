@@ -19,8 +19,8 @@ PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 
           "quadruped_maze_sample": ("quadruped", "maze", (("goal", "sample"),), "Quadruped Maze Sample (success)",
                                     ".78 ± .08")}
 # What the paper says of the curves (its numbers are curves only)
-WORDS = {"finetune_kl": "above plain finetuning (modest on Maze)", "finetune": "above HL scratch",
-         "full": "unsuccessful (no hierarchy)"}
+WORDS = {"finetune_kl": "above plain finetuning, modestly on Maze", "finetune": "above HL scratch",
+         "full": "unsuccessful without hierarchy"}
 
 
 def parts(pr: Preset) -> tuple[Part, ...]:

@@ -280,7 +280,7 @@ def _cell(part, cell, selected, runs: Runs, episodes: int, previous: dict, evalu
   entry = dict(id=cid, row=cell.row, col=cell.col, paper=cell.paper, runs={k: r.name for k, r in cell.runs.items()})
   if not selected(cid):
     old = previous.get(cid)
-    return old if _still_valid(old) else dict(entry, status="not selected")
+    return dict(old, paper=cell.paper) if _still_valid(old) else dict(entry, status="not selected")
   sources = {role: runs.get(r) for role, r in cell.runs.items()}
   missing = [s for s in sources.values() if not s.usable]
   if missing:
@@ -384,5 +384,5 @@ def plot(result: dict, path: Path) -> Path:
       series = {c["row"]: (c["curve"]["x"], c["curve"]["y"]) for c in done if c.get("curve")}
       hline = {c["row"]: c["mean"] for c in done if "curve" not in c}
       panels.append(("curves", dict(series=series, hline=hline, title=part["title"], ylabel=metric,
-                                    xlabel="env steps of B")))
+                                    xlabel="env steps of B", ylim=(-0.02, 1.02) if metric == "success" else None)))
   return plots.panels(panels, path, title=f"{result['title']} (preset {result['preset']})")
