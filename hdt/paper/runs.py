@@ -79,12 +79,13 @@ def _flags(cfg: SACConfig, base: SACConfig) -> list[str]:
 
 def _config(level: str, preset: str, pr: Preset, steps: int | None, **kw) -> tuple[SACConfig, SACConfig]:
   """(the config of a run of ``steps``, split into ``pr.evals`` evaluations, or of the preset's
-  budget; the config the CLI builds without budget options)."""
-  base = configs.config(level, preset, **kw)
+  budget; the config the CLI builds without budget options). The stages run on the "auto" backend,
+  as the printed commands do (the paper preset's throughput follows it: configs.ACCELERATOR)."""
+  base = configs.config(level, preset, backend="auto", **kw)
   if steps is None:
     return base, base
   chunk = configs.chunk_for(steps, base.num_envs, pr.evals)
-  return configs.config(level, preset, **kw, total_env_steps=steps, steps_per_chunk=chunk), base
+  return configs.config(level, preset, backend="auto", **kw, total_env_steps=steps, steps_per_chunk=chunk), base
 
 
 def _common(preset: str, seeds: int, out: Path) -> list[str]:

@@ -1,4 +1,4 @@
-"""The one table of training defaults and presets, shared by the CLI, the Python API and experiments/.
+"""The one table of training defaults and presets, shared by the CLI, the Python API and hdt/paper/.
 
 The paper's SAC hyper-parameters per level and agent family (SPEC 4, paper Appendix D) and the
 budgets of ``--preset``. Defaults that belong to an agent or a task are data on them and read here:
@@ -234,7 +234,7 @@ def config(level: str, preset: str = "paper", agent: str | None = None, task: st
   """The SACConfig of a training stage: the paper's values for the agent (``low``, ``full``) or the
   task (``high``, ``finetune``, ``full``), then ``preset``'s budget, with ``paper`` on a ``backend``
   that runs MJX on an accelerator its :data:`ACCELERATOR` throughput, then ``overrides``. The CLI and
-  experiments/ both build their configs here."""
+  hdt/paper/ both build their configs here."""
   over = preset_overrides(preset, level, agent) | overrides
   if preset == "paper" and on_accelerator(backend):
     total = over.get("total_env_steps") or (agent_spec(agent).ll_budget if level == "low" else hl_budget(task))
