@@ -1,7 +1,7 @@
 """Several processes through jax.distributed (HDT_DISTRIBUTED=1): each trains its share of the seeds,
 process 0 alone writes the run directory, the results equal one process's, and --resume after both
-were killed continues exactly. The two-process run is `slow` (about 3 minutes on the 2-core CPU):
-``python -m pytest -q -p no:xdist -m slow tests/test_distributed.py``."""
+were killed continues exactly. The two-process run is `slow` (3-6 minutes on the 2-core CPU):
+``python -m pytest -q -m slow tests/test_distributed.py``."""
 
 import csv
 import json
