@@ -24,21 +24,21 @@ TRAIN = ["-m", "hdt.cli", "train", "low", "--agent", "point", "--preset", "smoke
 TOTAL = 2000  # the smoke preset's LL budget
 
 
-def test_outside_a_cluster_the_missing_variables_are_named(monkeypatch):
-  for var in ("JAX_NUM_PROCESSES", "JAX_PROCESS_ID", "JAX_COORDINATOR_ADDRESS"):
-    monkeypatch.delenv(var, raising=False)
-  monkeypatch.setenv("HDT_DISTRIBUTED", "1")
-  monkeypatch.setenv("JAX_COORDINATOR_ADDRESS", "localhost:1")
-  with pytest.raises(ValueError) as e:
-    sharding.initialize_distributed()
-  text = str(e.value)
-  assert "number of processes must be defined" in text and "set JAX_NUM_PROCESSES, JAX_PROCESS_ID" in text
-  assert not jax.distributed.is_initialized()
-  monkeypatch.setenv("JAX_NUM_PROCESSES", "two")
-  with pytest.raises(ValueError, match="JAX_NUM_PROCESSES='two': give a whole number"):
-    sharding.initialize_distributed()
-  monkeypatch.delenv("HDT_DISTRIBUTED")
-  assert sharding.initialize_distributed() is False  # not asked
+def _initialize(**env) -> str:
+  """What initialize_distributed says in a fresh process (JAX allows it before any JAX operation only)."""
+  code = ("from hdt.agents import sharding\ntry:\n  print('RESULT', sharding.initialize_distributed())\n"
+          "except ValueError as e:\n  print('ERROR', e)")
+  out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=_env(**env))
+  return out.stdout.strip() or out.stderr[-2000:]
+
+
+def test_outside_a_cluster_the_missing_variables_are_named():
+  text = _initialize(HDT_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS="localhost:1")
+  assert text.startswith("ERROR HDT_DISTRIBUTED=1 but number of processes must be defined"), text
+  assert "set JAX_NUM_PROCESSES, JAX_PROCESS_ID on every process" in text and "\n" not in text
+  text = _initialize(HDT_DISTRIBUTED="1", JAX_NUM_PROCESSES="two")
+  assert text == "ERROR JAX_NUM_PROCESSES='two': give a whole number (e.g. JAX_NUM_PROCESSES=0)", text
+  assert _initialize() == "RESULT False"  # not asked
 
 
 def test_the_seed_mesh_takes_the_same_devices_from_every_process():
