@@ -295,13 +295,13 @@ def build_parser() -> argparse.ArgumentParser:
   rp = sub.add_parser("reproduce", help="a paper table or figure: zoo entries (paper preset) and the runs in --out "
                       "reused, what is missing trained, NAME_PRESET.md/.json/.png written", formatter_class=fmt)
   rp.add_argument("name", choices=NAMES)
-  rp.add_argument("--only", action="append", default=[], metavar="PATTERN",
+  rp.add_argument("--only", action="append", default=None, metavar="PATTERN",
                   help="cells to run, by id (part/row/column, e.g. 'waypoint/pm/*', or a part's name; repeatable); "
                        "the others keep their earlier numbers, or show as not selected")
   rp.add_argument("--max-env-steps", type=_env_steps_limit, default="preset", metavar="N|all",
                   help="train a missing run only if it costs at most N env steps of its robot (an HL: decisions "
                        "times k); the others are listed as not run, with the command that trains them (default: "
-                       "the preset's: no limit at smoke and cpu, 1000000 at paper)")
+                       "%(default)s, the preset's limit: none at smoke and cpu, 1000000 at paper)")
   rp.add_argument("--dry-run", action="store_true", help="print the plan (zoo, reuse, train, not run) and stop")
   _common(rp, "directory of the table's runs, its NAME_PRESET.md, .json and .png (default: runs/NAME-PRESET)")
 
@@ -706,8 +706,8 @@ def cmd_reproduce(args) -> int:
   out = _out_dir(args, f"{args.name}-{args.preset}", kind="experiment", reuse=True, legacy=legacy(args.name))
   seeds = None if args.seeds is None else _seeds(args)
   t0 = time.time()
-  done = paper.reproduce(args.name, args.preset, out, seeds=seeds, only=args.only, max_env_steps=args.max_env_steps,
-                         quiet=args.quiet, dry_run=args.dry_run)
+  done = paper.reproduce(args.name, args.preset, out, seeds=seeds, only=args.only or (),
+                         max_env_steps=args.max_env_steps, quiet=args.quiet, dry_run=args.dry_run)
   print(done.markdown)
   if not args.dry_run:
     print(f"{args.name} ({args.preset}) took {(time.time() - t0) / 60:.1f} min; written: "

@@ -218,7 +218,8 @@ class Finetune(_Recipe):
 
   @property
   def name(self) -> str:
-    return f"{self.low.agent}_finetune{'_kl' if self.kl else ''}_{self.task}{_suffix(self.options)}_from_{self.high.low.agent}"
+    kl = "_kl" if self.kl else ""
+    return f"{self.low.agent}_finetune{kl}_{self.task}{_suffix(self.options)}_from_{self.high.low.agent}"
 
   @property
   def label(self) -> str:
@@ -378,7 +379,8 @@ def describe(source: Source) -> dict:
   if source.status not in ("zoo", "reuse", "reused", "resumed", "trained"):
     return {}
   meta = ckpt.load_meta(source.path)
-  total, unit = meta.get("sac", {}).get("total_env_steps"), ("HL decisions" if meta.get("level") == "high" else "env steps")
+  total = meta.get("sac", {}).get("total_env_steps")
+  unit = "HL decisions" if meta.get("level") == "high" else "env steps"
   paper = source.recipe.paper_budget()
   return dict(budget=f"{_k(total)} {unit}" + (f" of {_k(paper)}" if paper and paper != total else ""),
               seeds=len(names.list_seeds(source.path)), env_steps=total)

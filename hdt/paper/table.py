@@ -214,7 +214,8 @@ def legacy(name: str) -> Callable[[Path], bool]:
 
 def command(name: str, preset: str, out: Path, seeds=None, only=(), max_env_steps="preset") -> str:
   """The ``hdt reproduce`` command of these arguments."""
-  limit = [] if max_env_steps == "preset" else ["--max-env-steps", "all" if max_env_steps is None else str(max_env_steps)]
+  limit = [] if max_env_steps == "preset" else [
+      "--max-env-steps", "all" if max_env_steps is None else str(max_env_steps)]
   return shlex.join(["hdt", "reproduce", name, "--preset", preset, "--out", str(out),
                      *(["--seeds", str(seeds)] if seeds is not None else []),
                      *(a for p in only or () for a in ("--only", p)), *limit])
@@ -371,7 +372,8 @@ def plot(result: dict, path: Path) -> Path:
     done = [c for c in part["cells"] if c["status"] == "done"]
     metric = part["metric"]
     if part["kind"] == "matrix":
-      cells = {(c["row"], c["col"]): (c["mean"], c["std"], metric) if c["status"] == "done" else (math.nan, math.nan, metric)
+      nan = (math.nan, math.nan, metric)  # drawn as not run
+      cells = {(c["row"], c["col"]): (c["mean"], c["std"], metric) if c["status"] == "done" else nan
                for c in part["cells"]}
       matrix = dict(task=part["task"], rows=part["rows"], cols=part["cols"], cells=cells,
                     paper={(c["row"], c["col"]): c["paper"] for c in part["cells"]})
