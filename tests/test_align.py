@@ -340,25 +340,29 @@ def _energy_distance(x, y):
   return 2 * d(x, y) - d(x, x) - d(y, y)
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "not shown on the authors' 26.8 kg ball at this toy budget: mean energy distance over 3 seeds, plain vs "
+    "aligned, 0.0137 vs 0.0178 at 4k steps and 0.0332 vs 0.0317 at 12k; one seed passed by -15% before the "
+    "critics' biases were initialised at 0, and failed by -5% after"))
 def test_alignment_moves_b_taus_towards_a(tmp_path):
   """B = point mass with 3x actuator gear; its goal-space taus, aligned to A (the normal
   point mass, LL trained 3000 steps), are closer to A's than B's plain LL's taus, by energy distance
-  on tau / delta_max. Same budget (4000 steps) for both B's; the alignment weight is a constant 0.5
-  (DSAC's default discrim_weight). With the authors' reward (1-w) r + w clip(-2 log D) measured:
-  plain 0.106; aligned w=0.5 0.085 (-20%), w=0.3 0.100 (-5%), w=0.9 0.61 (the task reward, scaled
-  by 1-w, no longer teaches B to reach)."""
+  on tau / delta_max averaged over 3 seeds of each B (one seed's margin moves with any change of the
+  random streams). Same budget (4000 steps) for both B's; the alignment weight is a constant 0.5
+  (DSAC's default discrim_weight), the authors' reward (1-w) r + w clip(-2 log D)."""
   small = lambda steps: configs.low_config(
       "point", total_env_steps=steps, num_envs=8, updates_per_step=8, steps_per_chunk=steps // 8,
       batch_size=64, buffer_size=5000, hidden_sizes=(32, 32), num_eval_episodes=2)
   a = train_low("point", small(3000), options=RunOptions(seeds=1, out=tmp_path / "a", quiet=True))
-  plain = train_low("point", small(4000), options=RunOptions(seeds=1, out=tmp_path / "plain", quiet=True),
+  plain = train_low("point", small(4000), options=RunOptions(seeds=3, out=tmp_path / "plain", quiet=True),
                     gear_scale=3.0)
   disc = D.DiscConfig(weight=0.5, w_decay=False, lr=1e-3, buffer_size=5000, data="fixed")
   aligned = train_low("point", small(4000), imitate=AlignSpec(a.run_dir, disc),
-                      options=RunOptions(seeds=1, out=tmp_path / "al", quiet=True), gear_scale=3.0)
-  taus = {n: collect_offline(r.run_dir, 1024, jax.random.PRNGKey(5), num_envs=64, include_z=False) / 4.0
-          for n, r in [("a", a), ("plain", plain), ("aligned", aligned)]}
-  e_plain, e_aligned = (_energy_distance(taus[n], taus["a"]) for n in ("plain", "aligned"))
+                      options=RunOptions(seeds=3, out=tmp_path / "al", quiet=True), gear_scale=3.0)
+  taus = lambda run, i: collect_offline(run.run_dir, 1024, jax.random.PRNGKey(5), num_envs=64, include_z=False,
+                                        seed_index=i) / 4.0
+  tau_a = taus(a, 0)
+  e_plain, e_aligned = (np.mean([_energy_distance(taus(r, i), tau_a) for i in range(3)]) for r in (plain, aligned))
   assert e_aligned < 0.95 * e_plain, (e_plain, e_aligned)
 
 
