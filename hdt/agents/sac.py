@@ -396,13 +396,8 @@ def make_update(
     *,
     actor_regularizer: ActorRegularizer | None = None,
     reward_fn: RewardFn | None = None,
-    axis_name: str | None = None,
 ):
   """Returns ``update(state, batch, noise, aux_state=None, hyper=None) -> (state, metrics)``.
-
-  ``axis_name``: with the batch split over devices along this mapped axis (``shard_map``), every
-  gradient and metric is averaged over it (``pmean``) before the optimisers step, so the replicated
-  state takes the step of the whole batch (brax's ``pmap_axis_name``).
 
   ``noise``: standard-normal array of shape ``(2, batch, action_size)``, the reparameterisation
   noise of the critic target's next action (``noise[0]``) and of the actor loss (``noise[1]``),
@@ -425,10 +420,9 @@ def make_update(
         actor_regularizer=actor_regularizer,
     )
     pi_opt, q_opt, a_opt = make_optimizers(config, h)
-    mean = (lambda x: x) if axis_name is None else (lambda x: jax.lax.pmean(x, axis_name))
-    critic_grad = lambda *a: mean(jax.value_and_grad(critic_loss, has_aux=True)(*a))
-    actor_grad = lambda *a: mean(jax.value_and_grad(actor_loss, has_aux=True)(*a))
-    alpha_grad = lambda *a: mean(jax.value_and_grad(alpha_loss)(*a))
+    critic_grad = jax.value_and_grad(critic_loss, has_aux=True)
+    actor_grad = jax.value_and_grad(actor_loss, has_aux=True)
+    alpha_grad = jax.value_and_grad(alpha_loss)
     eps_critic, eps_actor = noise[0], noise[1]
     if reward_fn is not None:
       batch = batch.replace(reward=reward_fn(aux_state, batch).astype(batch.reward.dtype))
@@ -471,7 +465,7 @@ def make_update(
         "entropy": -jnp.mean(a_aux["log_prob"]),
         "q": c_aux["q"],
         "target_q": c_aux["target_q"],
-        "batch_reward": mean(jnp.mean(batch.reward)),
+        "batch_reward": jnp.mean(batch.reward),
     } | ({"v": c_aux["v"]} if networks.value_net else {}) | a_aux["regularizer"]
     return new_state, metrics
 
