@@ -545,16 +545,17 @@ def _ahead_of_time(fns: VmappedFns, key: str, keys: jax.Array, hyper: dict | Non
   abstract arguments are only traced when nothing was saved yet."""
   keys_a = jax.ShapeDtypeStruct(keys.shape, keys.dtype)
   index_a = jax.ShapeDtypeStruct(keys.shape[:1], jnp.int32)
-  ts_a = functools.cache(lambda: jax.eval_shape(fns.init, keys_a, index_a))
+  ts_a = lambda: jax.eval_shape(fns.init, keys_a, index_a)
   hyper_a = () if hyper is None else ({k: jax.ShapeDtypeStruct(keys.shape[:1], jnp.float32) for k in hyper},)
-  chunk, init, evaluate, eval_keys = cache.compiled_many([
-      (fns.run_chunk, key + "|run_chunk", lambda: (ts_a(), *hyper_a)),
-      (fns.init, key + "|init", lambda: (keys_a, index_a)),
-      (fns.evaluate, key + "|evaluate", lambda: (ts_a().agent.policy_params, keys_a, ts_a().agent.obs_norm)),
-      (fns.eval_keys, key + "|eval_keys", lambda: (keys_a, jax.ShapeDtypeStruct((), jnp.int32))),
-  ])
-  return VmappedFns(init=init, run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
-                    evaluate=evaluate, eval_keys=eval_keys)
+  chunk = cache.compiled(fns.run_chunk, key + "|run_chunk", lambda: (ts_a(), *hyper_a))
+  return VmappedFns(
+      init=cache.compiled(fns.init, key + "|init", lambda: (keys_a, index_a)),
+      run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
+      evaluate=cache.compiled(fns.evaluate, key + "|evaluate",
+                              lambda: (ts_a().agent.policy_params, keys_a, ts_a().agent.obs_norm)),
+      eval_keys=cache.compiled(fns.eval_keys, key + "|eval_keys",
+                               lambda: (keys_a, jax.ShapeDtypeStruct((), jnp.int32))),
+  )
 
 
 def run(
