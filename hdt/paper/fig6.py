@@ -6,11 +6,10 @@ goal always at the maze's end, as the paper."""
 
 from __future__ import annotations
 
-from hdt.paper.runs import High, Low, Preset
+from hdt.paper.runs import LEGGED_LOW, High, Low, Preset
 from hdt.paper.table import Part, Table, finetune_part
 
 PM_LOW = Low("point", zoo="point/low")
-ZOO_LOW = {"ant": "ant/low_250k", "quadruped": "quadruped/low_500k"}
 PM_HIGH = {"waypoint": High("waypoint", PM_LOW, zoo="point/waypoint"), "maze": High("maze", PM_LOW, zoo="point/maze")}
 # name: (B, task, options, title, the zero-shot level the paper's Table 1 gives)
 PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 ± 39"),
@@ -24,7 +23,7 @@ WORDS = {"finetune_kl": "above plain finetuning, modestly on Maze", "finetune": 
 
 
 def parts(pr: Preset) -> tuple[Part, ...]:
-  return tuple(finetune_part(name, title, PM_HIGH[task], Low(b, zoo=ZOO_LOW.get(b)), task, pr, options,
+  return tuple(finetune_part(name, title, PM_HIGH[task], Low(b, zoo=LEGGED_LOW.get(b)), task, pr, options,
                              paper=dict(WORDS, zero_shot=zero))
                for name, (b, task, options, title, zero) in PANELS.items())
 

@@ -6,13 +6,13 @@ BlockPush 1 (PM, 2Link, 3Link, 4Link; the 2Link row is the paper's Appendix E) a
 
 from __future__ import annotations
 
-from hdt.paper.runs import High, Low, Preset
+from hdt.paper.runs import LEGGED_LOW, High, Low, Preset
 from hdt.paper.table import Cell, Part, Table
 
 NAV = {"PM": "point", "Ant": "ant", "Ant3": "ant3", "Quad": "quadruped"}
 ARMS = {"PM": "arm_point", "2Link": "arm2", "3Link": "arm3", "4Link": "arm4"}
 # The zoo entries behind the paper preset's cells (RESULTS.md); the legged LLs are below 2.5M env steps.
-ZOO_LOW = {"point": "point/low", "ant": "ant/low_250k", "quadruped": "quadruped/low_500k",
+ZOO_LOW = {"point": "point/low", **LEGGED_LOW,
            "arm_point": "arm_point/low_1p2m", "arm2": "arm2/low_paper", "arm3": "arm3/low_paper",
            "arm4": "arm4/low_paper", ("arm_point", "insert"): "arm_point/low_insert_1p2m",
            ("arm3", "insert"): "arm3/low_insert", ("arm4", "insert"): "arm4/low_insert_1p2m"}

@@ -6,7 +6,7 @@ and 2, and 3Link → 4Link on PegInsert."""
 
 from __future__ import annotations
 
-from hdt.paper.runs import High, Low, Preset
+from hdt.paper.runs import LEGGED_LOW, High, Low, Preset
 from hdt.paper.table import Cell, Part, Table
 
 LABEL = {"point": "PM", "ant": "Ant", "ant3": "Ant3", "quadruped": "Quad", "arm_point": "PM", "arm2": "2Link",
@@ -18,7 +18,7 @@ ZOO_A_HIGH = {("point", "waypoint"): "point/waypoint", ("point", "maze"): "point
               ("arm_point", "push1"): "arm_point/push1_500k", ("arm_point", "push2"): "arm_point/push2",
               ("arm2", "push1"): "arm2/push1_500k", ("arm2", "push2"): "arm2/push2",
               ("arm3", "push1"): "arm3/push1_500k", ("arm3", "insert"): "arm3/insert"}
-ZOO_B_LOW = {"ant": "ant/low_250k", "quadruped": "quadruped/low_500k", "arm3": "arm3/low_paper",
+ZOO_B_LOW = {**LEGGED_LOW, "arm3": "arm3/low_paper",
              "arm4": "arm4/low_paper", ("arm4", "insert"): "arm4/low_insert_1p2m",
              ("arm3", "arm_point"): "arm3/low_aligned_pm_1p2m", ("arm3", "arm2"): "arm3/low_aligned_arm2_1p2m"}
 
