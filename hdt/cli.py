@@ -756,8 +756,8 @@ QUICKSTART_TRANSFERS = (  # task, HL (named after its run), HL run, LL run, rand
     ("push1", "4Link HL, zero-shot", "zoo:arm4/push1_500k", "zoo:arm_point/low", False, ".26 ± .17"),
     ("push1", "PM HL, zero-shot", "zoo:arm_point/push1_1p2m", "zoo:arm3/low_paper", False, ".17 ± .08"),
     ("push1", "uniform random sub-goals", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", True, "—"),
-    ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low_2p5m", False, "483 ± 39"),
-    ("waypoint", "uniform random sub-goals", "here", "zoo:ant/low_2p5m", True, "—"),
+    ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low_fast_600k", False, "483 ± 39"),
+    ("waypoint", "uniform random sub-goals", "here", "zoo:ant/low_fast_600k", True, "—"),
 )
 
 
