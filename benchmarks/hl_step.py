@@ -32,6 +32,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import results  # noqa: E402
+from e2e_throughput import time_chunks  # noqa: E402
 
 from hdt.agents import train as sac_train  # noqa: E402
 from hdt.transfer import configs  # noqa: E402
@@ -95,15 +96,7 @@ def measure(task: str, low: str, envs: int, chunks: int, reps: int, decisions: i
                             learning_starts=0, total_env_steps=steps * envs * (chunks + 2), buffer_size=100_000)
   fns = sac_train.vmapped(sac_train.make_train(env, cfg), 1)
   ts = fns.init(sac_train.seed_keys([0]), sac_train.seed_indices(1))
-  ts, m = fns.run_chunk(ts)  # compile + warm-up
-  jax.block_until_ready(m)
-  times = []
-  for _ in range(chunks):
-    t = time.perf_counter()
-    ts, m = fns.run_chunk(ts)
-    jax.block_until_ready(m)
-    times.append(time.perf_counter() - t)
-  train_s = float(np.median(times)) / steps  # per training step = envs HL decisions in parallel
+  train_s = time_chunks(fns, ts, chunks)[2] / steps  # per training step = envs HL decisions in parallel
 
   return dict(task=task, low=low, k=k, envs=envs, ll_steps_per_decision=ll_steps,
               train_s=train_s, env_s=env_s, ll_s=ll_s, ratio=train_s / ll_s,

@@ -31,7 +31,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 
 from hdt import atomic
-from hdt.transfer import names
+from hdt.transfer import rundir
 
 SUBGOAL_RGBA = (1.0, 0.85, 0.0, 1.0)  # yellow: no scene or robot of hdt's is (tests look for it)
 TARGET_RGBA = (0.9, 0.1, 0.1, 0.45)
@@ -354,10 +354,7 @@ def check_out(out: str | Path, overwrite: bool = False) -> Path:
     raise ValueError(f"{out}: name the video .mp4 or .gif")
   if out.is_dir():
     raise ValueError(f"{out} is a directory: give a file name ending in .mp4 or .gif")
-  zoo = Path(names.ZOO_DIR).resolve()
-  if zoo in out.resolve().parents:
-    raise ValueError(f"{out} lies in the model zoo ({zoo}), which only `hdt zoo export` writes: give a path "
-                     f"outside it")
+  rundir.refuse_zoo(out, "--out", "a file outside it")
   if out.exists() and not overwrite:
     raise ValueError(f"{out} exists: pass --overwrite (overwrite=True) to replace it, or give another file name")
   return out

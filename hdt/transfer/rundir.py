@@ -145,14 +145,20 @@ def _inputs(reads) -> list[tuple[str, Path]]:
   return out
 
 
+def refuse_zoo(path, what: str = "out", instead: str = "a directory outside it, e.g. runs/my-run") -> None:
+  """Refuses ``path`` in the model zoo, which only ``hdt zoo export`` writes."""
+  real, zoo_dir = _real(path), _real(names.ZOO_DIR)
+  if real == zoo_dir or zoo_dir in real.parents:
+    raise RunDirError(f"{what}={path} lies in the model zoo ({zoo_dir}), which only `hdt zoo export` writes; "
+                      f"pass {instead}")
+
+
 def check_place(path, what: str = "out", reads=(), zoo_ok: bool = False) -> None:
   """Refuses ``path`` in the model zoo (unless ``zoo_ok``), inside another hdt run, or where it is,
   holds or lies inside a run the command reads (``reads``: see :func:`_inputs`)."""
   real = _real(path)
-  zoo_dir = _real(names.ZOO_DIR)
-  if not zoo_ok and (real == zoo_dir or zoo_dir in real.parents):
-    raise RunDirError(f"{what}={path} lies in the model zoo ({zoo_dir}), which only `hdt zoo export` writes; "
-                      f"pass a directory outside it, e.g. runs/my-run")
+  if not zoo_ok:
+    refuse_zoo(path, what)
   for parent in real.parents:
     kind = owner_kind(parent) or ("zoo entry" if (parent / "zoo.json").is_file() else None)
     if kind is not None and kind not in CONTAINERS:
