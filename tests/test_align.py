@@ -51,14 +51,14 @@ def test_discriminator_separates_distributions():
   al = D.make_alignment(cfg, tau_a, total_env_steps=400, num_envs=1)
   aux = al.aux_init(jax.random.PRNGKey(0))
   buf = jnp.asarray(tau_b)
-  aux = dict(aux, buf=aux["buf"].at[: len(buf)].set(buf), size=jnp.int32(len(buf)))
+  aux = aux.replace(buf=aux.buf.at[: len(buf)].set(buf), size=jnp.int32(len(buf)))
   step = jax.jit(lambda aux, s, k: al.aux_update(aux, _empty(), s, k))
   for i in range(400):
     aux, m = step(aux, jnp.int32(i + 1), jax.random.PRNGKey(i + 1))
   held_a, held_b = _taus(rng, 2000, 0.05), _taus(rng, 2000, 2.0)
-  acc = 0.5 * (np.mean(al.apply(aux["params"], held_a) < 0) + np.mean(al.apply(aux["params"], held_b) > 0))
+  acc = 0.5 * (np.mean(al.apply(aux.params, held_a) < 0) + np.mean(al.apply(aux.params, held_b) > 0))
   assert acc > 0.9, acc  # measured 0.99
-  assert int(aux["opt_state"].count) == 400
+  assert int(aux.opt_state.count) == 400
 
 
 def test_reward_matches_authors_formula():
@@ -92,9 +92,9 @@ def test_reward_fn_uses_env_step_counter():
                      reward=jnp.asarray(rng.normal(size=8), jnp.float32),
                      next_obs=jnp.asarray(np.pad(x[:, 2:4], ((0, 0), (3, 0)))), discount=jnp.ones(8),
                      extras={"z": jnp.asarray(x[:, 4:]), "first": jnp.zeros(8)})
-  logit = np.asarray(al.apply(aux["params"], x))
+  logit = np.asarray(al.apply(aux.params, x))
   for env_steps in (100, 400):
-    got = al.reward_fn(dict(aux, env_steps=jnp.int32(env_steps)), batch)
+    got = al.reward_fn(aux.replace(env_steps=jnp.int32(env_steps)), batch)
     np.testing.assert_allclose(np.asarray(got), _np_reward(batch.reward, logit, env_steps, 1000, 0.4),
                                rtol=1e-5, atol=1e-5)
 
@@ -125,10 +125,10 @@ def test_discriminator_input_contains_z():
   tr = Transition(obs=obs, action=jnp.zeros((1, 2)), reward=jnp.zeros(1), next_obs=nxt,
                   discount=jnp.ones(1), extras={"z": z, "first": jnp.ones(1)})
   aux, _ = al.aux_update(aux, tr, jnp.int32(1), jax.random.PRNGKey(1))
-  np.testing.assert_array_equal(aux["buf"][0], [3, 4, 13, 14, 7, -7])
+  np.testing.assert_array_equal(aux.buf[0], [3, 4, 13, 14, 7, -7])
   # the reward depends on z
-  r1 = al.reward_fn(dict(aux, env_steps=jnp.int32(500)), tr)
-  r2 = al.reward_fn(dict(aux, env_steps=jnp.int32(500)), tr.replace(extras={"z": -z, "first": jnp.ones(1)}))
+  r1 = al.reward_fn(aux.replace(env_steps=jnp.int32(500)), tr)
+  r2 = al.reward_fn(aux.replace(env_steps=jnp.int32(500)), tr.replace(extras={"z": -z, "first": jnp.ones(1)}))
   assert float(r1[0]) != float(r2[0])
 
 
@@ -141,7 +141,7 @@ def test_aux_update_buffer_and_update_cadence_vmapped():
   seeds = 2
   aux = jax.vmap(al.aux_init)(jax.random.split(jax.random.PRNGKey(0), seeds))
   upd = jax.jit(jax.vmap(al.aux_update, in_axes=(0, 0, None, 0)))
-  params0 = aux["params"]
+  params0 = aux.params
   for t in range(1, 17):
     obs = jnp.full((seeds, 4, 5), float(t))
     tr = Transition(obs=obs, action=jnp.zeros((seeds, 4, 2)), reward=jnp.zeros((seeds, 4)),
@@ -150,17 +150,17 @@ def test_aux_update_buffer_and_update_cadence_vmapped():
     aux, m = upd(aux, tr, jnp.int32(4 * t), jax.random.split(jax.random.PRNGKey(t), seeds))
     # updates at step indices 0, 8, 16, 24 (< stop T = 32); the buffer holds >= batch_size / 2 rows
     want = len([s for s in range(0, 4 * t, 8) if s < 32 and 2 * min(4 * (s // 4 + 1), 10) >= 4])
-    assert np.all(np.asarray(aux["opt_state"].count) == want), (t, aux["opt_state"].count, want)
-  assert np.all(np.asarray(aux["size"]) == 10) and np.all(np.asarray(aux["ptr"]) == 64 % 10)
+    assert np.all(np.asarray(aux.opt_state.count) == want), (t, aux.opt_state.count, want)
+  assert np.all(np.asarray(aux.size) == 10) and np.all(np.asarray(aux.ptr) == 64 % 10)
   # the buffer holds the last 10 inputs (steps 14..16), each (t, t, t+1, t+1, -t, -t)
-  held = np.sort(np.asarray(aux["buf"][0, :, 0]))
+  held = np.sort(np.asarray(aux.buf[0, :, 0]))
   np.testing.assert_array_equal(held, [14, 14, 15, 15, 15, 15, 16, 16, 16, 16])
-  np.testing.assert_array_equal(np.asarray(aux["buf"][0, :, 2]) - 1, np.asarray(aux["buf"][0, :, 0]))
-  np.testing.assert_array_equal(np.asarray(aux["buf"][0, :, 4]), -np.asarray(aux["buf"][0, :, 0]))
-  assert np.asarray(aux["env_steps"]).tolist() == [64, 64]
+  np.testing.assert_array_equal(np.asarray(aux.buf[0, :, 2]) - 1, np.asarray(aux.buf[0, :, 0]))
+  np.testing.assert_array_equal(np.asarray(aux.buf[0, :, 4]), -np.asarray(aux.buf[0, :, 0]))
+  assert np.asarray(aux.env_steps).tolist() == [64, 64]
   # lr schedule: lr (1 - step / (stop T)), 0 from stop T on
   assert float(D.disc_lr(cfg, 16, 64)) == pytest.approx(0.5 * 1e-2) and float(D.disc_lr(cfg, 40, 64)) == 0.0
-  changed = jax.tree.leaves(jax.tree.map(lambda a, b: bool(jnp.any(a != b)), aux["params"], params0))
+  changed = jax.tree.leaves(jax.tree.map(lambda a, b: bool(jnp.any(a != b)), aux.params, params0))
   assert any(changed)
   assert np.all(np.isfinite(np.asarray(m["disc/loss"])))
 
@@ -180,15 +180,15 @@ def test_every_nth_episode_is_held_out_to_measure_accuracy_only():
   # env 0's episodes 2 and 4 (t 3-5, 9-11), env 1's episode 2 (t 4-7) are held out
   held = sorted([10 * t for t in (3, 4, 5, 9, 10, 11)] + [10 * t + 1 for t in (4, 5, 6, 7)])
   kept = sorted(set(10 * t + e for t in range(12) for e in (0, 1)) - set(held))
-  assert sorted(np.asarray(aux["tbuf"][: int(aux["tsize"]), 0]).tolist()) == held
-  assert sorted(np.asarray(aux["buf"][: int(aux["size"]), 0]).tolist()) == kept
-  assert int(aux["ptr"]) == len(kept) and int(aux["tptr"]) == len(held)
+  assert sorted(np.asarray(aux.tbuf[: int(aux.tsize), 0]).tolist()) == held
+  assert sorted(np.asarray(aux.buf[: int(aux.size), 0]).tolist()) == kept
+  assert int(aux.ptr) == len(kept) and int(aux.tptr) == len(held)
   assert 0.0 <= float(m["disc/test_acc"]) <= 1.0  # a held-out batch exists by now
   # test_every=0: every row trains, as before
   al0 = D.make_alignment(dataclasses.replace(cfg, test_every=0), _taus(np.random.default_rng(1), 32, 0.1),
                          total_env_steps=1000, num_envs=2)
   aux0, m0 = jax.jit(al0.aux_update)(al0.aux_init(jax.random.PRNGKey(0)), tr, jnp.int32(2), jax.random.PRNGKey(0))
-  assert "tbuf" not in aux0 and "disc/test_acc" not in m0 and int(aux0["size"]) == 2
+  assert aux0.tbuf is None and "disc/test_acc" not in m0 and int(aux0.size) == 2
 
 
 # A: the point LL trained once per session (point_low, conftest.py).
@@ -261,12 +261,12 @@ def test_align_low_online_runs_and_a_follows_b_goals(point_low, tmp_path, monkey
   import orbax.checkpoint as ocp
   arrays = ocp.PyTreeCheckpointer().restore(ck.state_dir(tmp_path / "online").resolve() / "arrays")
   leaves = {name: np.asarray(arrays["state"][f"{i:05d}"]) for i, (name, _, _) in enumerate(info["leaves"])}
-  buf_b, buf_a = leaves[".aux['buf']"][0, :200], leaves[".aux['buf_a']"][0, :200]
+  buf_b, buf_a = leaves[".aux['discriminator'].buf"][0, :200], leaves[".aux['discriminator'].buf_a"][0, :200]
   np.testing.assert_array_equal(buf_a[:, 4:], buf_b[:, 4:])
   assert len(np.unique(buf_b[:, 4], axis=0)) > 4  # several goals, not one
   # A's final goal is B's current relative goal, for B envs that did not just start a new episode
   z_b = leaves[".env_state.task['t']['z']"][0]
-  z_a = leaves[".aux['a_state'].task['t']['z']"][0]
+  z_a = leaves[".aux['discriminator'].a_state.task['t']['z']"][0]
   steps_b = leaves[".env_state.task['steps']"][0]
   mid = steps_b > 0
   assert mid.any()
@@ -291,7 +291,7 @@ def _alongside_state(imitate, tmp_path, data, agent="point", **disc_kw):
 def _chain_breaks(leaves):
   """The steps where A's row does not begin where its previous row ended (row t's g - s_t against row
   t-1's g - s_t+1), from :func:`_alongside_state`'s 240 steps of 4 B envs."""
-  rows = leaves[".aux['buf_a']"][:240].reshape(60, 4, -1)
+  rows = leaves[".aux['discriminator'].buf_a"][:240].reshape(60, 4, -1)
   gap = np.abs(rows[1:, :, :2] - rows[:-1, :, 2:4]).max(axis=(1, 2))
   return [int(t) + 1 for t in np.flatnonzero(gap > 1e-5)]
 
@@ -301,10 +301,10 @@ def test_authors_offline_mode_starts_a_on_its_own_goal_then_follows_b(point_low,
   random goal of its own; after A's time limit (here 10 steps) it restarts on B's current z. A's rows
   carry B's z throughout (DSAC.learn labels both classes with the agent's skill)."""
   leaves = _alongside_state(point_low, tmp_path, "offline", expert_time_limit=10)
-  buf_b, buf_a = leaves[".aux['buf']"][:240], leaves[".aux['buf_a']"][:240]
+  buf_b, buf_a = leaves[".aux['discriminator'].buf"][:240], leaves[".aux['discriminator'].buf_a"][:240]
   np.testing.assert_array_equal(buf_a[:, 4:], buf_b[:, 4:])  # B's z on A's rows
   steps_b = leaves[".env_state.task['steps']"]
-  z_a, z_b = leaves[".aux['a_state'].task['t']['z']"], leaves[".env_state.task['t']['z']"]
+  z_a, z_b = leaves[".aux['discriminator'].a_state.task['t']['z']"], leaves[".env_state.task['t']['z']"]
   # 240 steps / 4 envs = 60 steps per env: B's episodes (50) restarted at step 50; A ran 10 steps on its
   # own goal, then restarted on B's z at its time limit
   assert np.all(steps_b == 10) and np.array_equal(z_a, z_b)
@@ -315,7 +315,7 @@ def test_authors_offline_mode_starts_a_on_its_own_goal_then_follows_b(point_low,
   # prev_expert_obs is set before A's own restart: A's rows chain across it, B's episode start begins afresh
   assert _chain_breaks(leaves) == [50]
   online = _alongside_state(point_low, tmp_path, "online", expert_time_limit=10)
-  np.testing.assert_allclose(online[".aux['buf_a']"][:4, :2], online[".aux['buf_a']"][:4, 4:], atol=1e-5)
+  np.testing.assert_allclose(online[".aux['discriminator'].buf_a"][:4, :2], online[".aux['discriminator'].buf_a"][:4, 4:], atol=1e-5)
 
 
 def test_expert_prev_obs_post_restart_begins_a_row_afresh_after_a_own_restart(point_low, tmp_path):
@@ -415,6 +415,6 @@ def test_alongside_b_a_restarts_at_its_hl_start_when_its_time_limit_ends(tmp_pat
   A restarted at its LL start with B's episode at step 50 and, at its time limit after step 60, at its
   HL start, where the run ends."""
   leaves = _alongside_state("zoo:arm_point/low", tmp_path, "offline", agent="arm_point", expert_time_limit=10)
-  assert np.all(leaves[".aux['a_state'].task['steps']"] == 0)
-  qpos = leaves[".aux['a_state'].physics.qpos"][:, :2]  # the PM's slides: its position
+  assert np.all(leaves[".aux['discriminator'].a_state.task['steps']"] == 0)
+  qpos = leaves[".aux['discriminator'].a_state.physics.qpos"][:, :2]  # the PM's slides: its position
   assert np.all(np.abs(qpos - [0.2, 0.0]) <= 0.05 + 1e-6), qpos

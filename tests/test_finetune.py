@@ -298,7 +298,7 @@ def test_kl_reference_is_a_best_and_the_start_a_final(pm_runs, tmp_path, monkeyp
     ts = captured["initial_state"]
     seed0 = lambda tree: jax.tree.map(lambda x: x[0], tree)
     assert _leaves_equal(seed0(ts.agent.policy_params), final["policy"])  # the start: A's final
-    assert _leaves_equal(seed0(ts.aux["kl_reference"]), want["policy"])
+    assert _leaves_equal(seed0(ts.aux["kl"].reference), want["policy"])
     rec = captured["meta"]["finetuned_from"]
     assert rec["params"] == "final" and rec["reference_params"] == which.get("reference_params", "best")
     if not which:
@@ -308,7 +308,7 @@ def test_kl_reference_is_a_best_and_the_start_a_final(pm_runs, tmp_path, monkeyp
   a = high.run_dir if "best" not in ckpt.load_meta(high.run_dir, 0) else _without_best(high.run_dir, tmp_path / "nb")
   finetune_high(a, low.run_dir, "waypoint", cfg, spec=FinetuneSpec(kl_weight=1.0), options=RunOptions(quiet=True))
   assert captured["meta"]["finetuned_from"]["reference_params"] == "final"
-  assert _leaves_equal(jax.tree.map(lambda x: x[0], captured["initial_state"].aux["kl_reference"]),
+  assert _leaves_equal(jax.tree.map(lambda x: x[0], captured["initial_state"].aux["kl"].reference),
                        ckpt.load(high.run_dir, 0, "final")[0]["policy"])
 
 

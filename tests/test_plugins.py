@@ -8,8 +8,8 @@ import pytest
 
 from hdt.agents import discriminator as disc_lib
 from hdt.agents import train as sac_train
-from hdt.agents.discriminator import DiscConfig
-from hdt.agents.kl import KL_REFERENCE, kl_plugin
+from hdt.agents.discriminator import DiscConfig, DiscState
+from hdt.agents.kl import KLState, kl_plugin
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig
 from toy_env import PointGoal
@@ -44,10 +44,11 @@ def test_discriminator_and_kl_train_together_and_both_terms_are_logged():
   assert np.all(h["disc/loss"].max(axis=1) > 0)  # it trains (until DiscConfig.stop of the run)
   w = h["kl_weight"][0]
   assert w[chunks][0] > w[-1] > 0  # annealed from 2 towards 0
-  # both plug-ins' states are in TrainState.aux, per seed
+  # each plug-in's state is in TrainState.aux under its name, of its own type, per seed
   aux = res.state.aux
-  assert {"params", "buf", KL_REFERENCE} <= set(aux)
-  assert all(x.shape[0] == 2 for x in jax.tree.leaves(aux[KL_REFERENCE]))
+  assert set(aux) == {"discriminator", "kl"}
+  assert isinstance(aux["discriminator"], DiscState) and isinstance(aux["kl"], KLState)
+  assert all(x.shape[0] == 2 for x in jax.tree.leaves(aux["kl"].reference))
 
 
 def test_the_kl_reference_is_per_seed_state():
@@ -57,8 +58,8 @@ def test_the_kl_reference_is_per_seed_state():
   trainer = sac_train.make_train(ENV, CFG, networks=networks,
                                  plugins=[kl_plugin(networks.policy_apply, _reference(networks), 1.0, 1e6)])
   ts = sac_train.vmapped(trainer).init(sac_train.seed_keys([0, 1]), sac_train.seed_indices(2))
-  own = jax.tree.map(lambda r, p: r.at[1].set(p[1]), ts.aux[KL_REFERENCE], ts.agent.policy_params)
-  ts = ts.replace(aux=dict(ts.aux, **{KL_REFERENCE: own}))
+  own = jax.tree.map(lambda r, p: r.at[1].set(p[1]), ts.aux["kl"].reference, ts.agent.policy_params)
+  ts = ts.replace(aux=dict(ts.aux, kl=ts.aux["kl"].replace(reference=own)))
   ts, m = sac_train.vmapped(trainer).run_chunk(ts)  # learning starts within the first chunk
   reg = np.asarray(m["kl"])
   assert reg[0] > 1e-3 and reg[1] < 0.1 * reg[0], reg  # seed 1 starts at its reference
@@ -90,17 +91,24 @@ def test_regularizers_compose_each_with_its_schedule_and_name():
 
 def test_plugins_see_their_seed_index():
   """init gets each seed's place in the run's seeds (the same in every grid point)."""
-  plugin = Plugin("i", init=lambda key, agent, seed_index: (agent, {"i": jnp.asarray(seed_index)}))
+  plugin = Plugin("i", init=lambda key, agent, seed_index: (agent, jnp.asarray(seed_index)))
   trainer = sac_train.make_train(ENV, CFG, plugins=[plugin])
   ts = sac_train.vmapped(trainer).init(sac_train.seed_keys([5, 9, 5, 9]), sac_train.seed_indices(2, 2))
   assert np.asarray(ts.aux["i"]).tolist() == [0, 1, 0, 1]
 
 
+def test_each_plugin_keeps_its_own_state():
+  """Two plug-ins whose states have the same shape and field names do not collide: each state is kept
+  under its plug-in's name, and each update sees its own."""
+  init = lambda v: lambda key, agent, seed_index: (agent, {"x": jnp.float32(v)})
+  update = lambda state, transitions, env_steps, key: ({"x": state["x"] + 1.0}, {})
+  trainer = sac_train.make_train(ENV, CFG, plugins=[Plugin("a", init=init(0.0), update=update),
+                                                     Plugin("b", init=init(100.0), update=update)])
+  ts, _ = trainer.run_chunk(trainer.init(jax.random.PRNGKey(0)))
+  steps = CFG.steps_per_chunk
+  assert (float(ts.aux["a"]["x"]), float(ts.aux["b"]["x"])) == (steps, 100.0 + steps)
+
+
 def test_plugins_that_cannot_combine_are_refused():
-  init = lambda key, agent, seed_index: (agent, {"x": jnp.zeros(())})
-  with pytest.raises(ValueError, match=r"plug-in 'b' uses TrainState.aux keys \['x'\] that another plug-in owns"):
-    sac_train.make_train(ENV, CFG, plugins=[Plugin("a", init=init), Plugin("b", init=init)])
   with pytest.raises(ValueError, match="each plug-in needs its own name"):
     sac_train.make_train(ENV, CFG, plugins=[Plugin("a"), Plugin("a")])
-  with pytest.raises(TypeError, match="initial state must be a dict"):
-    sac_train.make_train(ENV, CFG, plugins=[Plugin("a", init=lambda key, agent, i: (agent, jnp.zeros(())))])

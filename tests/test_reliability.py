@@ -371,6 +371,9 @@ def test_checkpoint_of_another_kind_is_refused(saved):
   with pytest.raises(ckpt.CheckpointError, match=r"does not fit this run \(saved \['w'\] float32\[4\] where this run "
                      r"needs \['w'\] float32\[5\]\)"):
     ckpt.load_state(saved, {"w": jax.ShapeDtypeStruct((5,), np.float32)})
+  _edit_json(ckpt.state_dir(saved) / "state.json", hdt_version="0.0.1")  # an older layout names its writer
+  with pytest.raises(ckpt.CheckpointError, match=r"hdt 0.0.1 wrote it, and this is hdt \d"):
+    ckpt.load_state(saved, {"w": jax.ShapeDtypeStruct((5,), np.float32)})
   with pytest.raises(ckpt.CheckpointError, match="no saved training state"):
     ckpt.load_state_info(saved / "seed_0")
 

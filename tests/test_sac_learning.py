@@ -225,8 +225,8 @@ def test_plugins_are_wired_into_the_training_step():
       schedule=lambda env_steps: 0.5 * jnp.ones(()),
   )])
   ts, m = jax.jit(trainer.run_chunk)(jax.jit(trainer.init)(jax.random.PRNGKey(0)))
-  assert int(ts.aux["count"]) == 10 and len(seen_steps) == 1
-  np.testing.assert_allclose(float(ts.aux["reward_sum"]), float(jnp.sum(ts.replay.data.reward)), rtol=1e-5)
+  assert int(ts.aux["custom"]["count"]) == 10 and len(seen_steps) == 1
+  np.testing.assert_allclose(float(ts.aux["custom"]["reward_sum"]), float(jnp.sum(ts.replay.data.reward)), rtol=1e-5)
   assert float(m["aux_count"]) == pytest.approx(5.5)  # mean of 1..10 over the chunk
   assert float(m["batch_reward"]) == pytest.approx(3.0)  # rewards recomputed at sample time
   assert float(m["custom"]) == pytest.approx(2.0)  # logged under the plug-in's name

@@ -44,6 +44,7 @@ import math
 from typing import Any, Callable, NamedTuple, Sequence
 
 import flax.linen as nn
+from flax import struct
 import jax
 import jax.numpy as jnp
 import optax
@@ -228,6 +229,25 @@ def restart_on_z(env, state, z, where, reset_physics, hl_start: bool = False):
                        task=dict(state.task, t=t, steps=steps))
 
 
+@struct.dataclass
+class DiscState:
+  """The discriminator plug-in's per-seed state (``TrainState.aux["discriminator"]``)."""
+  params: Any
+  opt_state: Any
+  buf: jax.Array  # B's inputs, a ring of cap rows
+  ptr: jax.Array
+  size: jax.Array
+  env_steps: jax.Array
+  buf_a: jax.Array | None = None  # online: A's inputs, written in lockstep with buf
+  a_state: Any = None  # online: A's envs
+  a_prev: jax.Array | None = None  # expert_prev_obs="pre_restart": A's last observation before its restart
+  ep: jax.Array | None = None  # held-out episodes (cfg.test_every): episodes begun per B env
+  tbuf: jax.Array | None = None  # the held-out ring of B's inputs (and tbuf_a, A's, online)
+  tbuf_a: jax.Array | None = None
+  tptr: jax.Array | None = None
+  tsize: jax.Array | None = None
+
+
 class Alignment(NamedTuple):
   aux_init: Callable
   aux_update: Callable
@@ -253,11 +273,7 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
   expert: A's LL and reach env (``data="offline"`` or ``"online"``), its horizon A's time limit; B's
     env must be a reach env too (its task state gives z).
   tau_scale: inputs are divided by it before the MLP (1 = the authors' raw units).
-  The aux state: ``params``, ``opt_state``, ``buf`` (B's inputs), ``ptr``, ``size``, ``env_steps``,
-  and online ``buf_a`` (A's inputs, written in lockstep with ``buf``), ``a_state`` (A's envs) and, with
-  ``expert_prev_obs="pre_restart"``, ``a_prev`` (A's last observation before its restart); with
-  held-out episodes (``cfg.test_every``) also ``ep`` (episodes begun per B env) and the held-out
-  ``tbuf`` (``tbuf_a``), ``tptr``, ``tsize``.
+  Its per-seed state is a :class:`DiscState`.
   """
   online = cfg.data != "fixed"  # A runs alongside B
   n_in = cfg.input_size
@@ -287,19 +303,17 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
 
   def aux_init(key):
     params = net.init(key, jnp.zeros((1, n_in), jnp.float32))
-    aux = dict(params=params, opt_state=adam.init(params), buf=jnp.zeros((cap, n_in), jnp.float32),
-               ptr=jnp.zeros((), jnp.int32), size=jnp.zeros((), jnp.int32),
-               env_steps=jnp.zeros((), jnp.int32))
+    zero = jnp.zeros((), jnp.int32)
+    aux = DiscState(params=params, opt_state=adam.init(params), buf=jnp.zeros((cap, n_in), jnp.float32),
+                    ptr=zero, size=zero, env_steps=zero)
     if online:
-      aux["buf_a"] = jnp.zeros((cap, n_in), jnp.float32)
-      aux["a_state"] = jax.vmap(expert.env.reset)(jax.random.split(key, num_envs))
-      if carry_prev:  # A's last observation before its restart, the start of its next row
-        aux["a_prev"] = aux["a_state"].obs
+      a_state = jax.vmap(expert.env.reset)(jax.random.split(key, num_envs))
+      aux = aux.replace(buf_a=jnp.zeros((cap, n_in), jnp.float32), a_state=a_state,
+                        a_prev=a_state.obs if carry_prev else None)  # the start of A's next row
     if te:
-      aux |= dict(ep=jnp.zeros((num_envs,), jnp.int32), tbuf=jnp.zeros((cap_t, n_in), jnp.float32),
-                  tptr=jnp.zeros((), jnp.int32), tsize=jnp.zeros((), jnp.int32))
-      if online:
-        aux["tbuf_a"] = jnp.zeros((cap_t, n_in), jnp.float32)
+      aux = aux.replace(ep=jnp.zeros((num_envs,), jnp.int32), tbuf=jnp.zeros((cap_t, n_in), jnp.float32),
+                        tptr=zero, tsize=zero,
+                        tbuf_a=jnp.zeros((cap_t, n_in), jnp.float32) if online else None)
     return aux
 
   def step_expert(a_state, a_prev, extras, key):
@@ -333,25 +347,22 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     k_bits, k_a, k_t = jax.random.split(key, 3)
     x_b = inputs(transitions).reshape(-1, n_in)
     n = x_b.shape[0]
-    out = dict(aux)
+    out = aux
     held = jnp.zeros((n,), bool)
     if te:  # DSAC.learn: rows of every te-th episode (1-based count) go to the test buffer
-      out["ep"] = aux["ep"] + (transitions.extras["first"].reshape(n) > 0)
-      held = (out["ep"] % te == 0) & (out["ep"] >= te)
+      out = out.replace(ep=aux.ep + (transitions.extras["first"].reshape(n) > 0))
+      held = (out.ep % te == 0) & (out.ep >= te)
     # Kept rows fill the training ring from ptr, held rows the test ring from tptr
-    idx, ptr, size = _ring_slots(~held, aux["ptr"], aux["size"], cap)
+    idx, ptr, size = _ring_slots(~held, aux.ptr, aux.size, cap)
     write = lambda b, i, x: b.at[i].set(x, mode="drop")
     if online:
-      out["a_state"], last, x_a = step_expert(aux["a_state"], aux.get("a_prev"), transitions.extras, k_a)
-      if carry_prev:
-        out["a_prev"] = last
-      out["buf_a"] = write(aux["buf_a"], idx, x_a)
-    buf = write(aux["buf"], idx, x_b)
+      a_state, last, x_a = step_expert(aux.a_state, aux.a_prev, transitions.extras, k_a)
+      out = out.replace(a_state=a_state, a_prev=last if carry_prev else None, buf_a=write(aux.buf_a, idx, x_a))
+    buf = write(aux.buf, idx, x_b)
     if te:
-      tidx, out["tptr"], out["tsize"] = _ring_slots(held, aux["tptr"], aux["tsize"], cap_t)
-      out["tbuf"] = write(aux["tbuf"], tidx, x_b)
-      if online:
-        out["tbuf_a"] = write(aux["tbuf_a"], tidx, x_a)
+      tidx, tptr, tsize = _ring_slots(held, aux.tptr, aux.tsize, cap_t)
+      out = out.replace(tptr=tptr, tsize=tsize, tbuf=write(aux.tbuf, tidx, x_b),
+                        tbuf_a=write(aux.tbuf_a, tidx, x_a) if online else None)
     env_steps = jnp.asarray(env_steps, jnp.int32)
     # The env-step indices s in [prev, env_steps) of this training step with s % update_every == 0
     # get one update each (DSAC.learn: `step % discrim_train_freq == 0 and step / T < stop`).
@@ -360,7 +371,7 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
     s_j = s0 + ue * jnp.arange(max_k)
     due = (s_j < env_steps) & (s_j < cfg.stop * T) & (2 * size >= bs)
     # Samples drawn uniformly from the class-balanced buffer: a fair coin for the class, then a row.
-    a_src = out["buf_a"] if online else tau_a
+    a_src = out.buf_a if online else tau_a
     is_b, i_b, i_a = _draw(jax.random.bits(k_bits, (max_k, 3, bs), jnp.uint32), size,
                            size if online else tau_a.shape[0])
 
@@ -373,23 +384,22 @@ def make_alignment(cfg: DiscConfig, tau_a=None, total_env_steps: int = 1, num_en
       return _select(on, (p2, o2), (params, opt_state)), (loss, acc)
 
     (params, opt_state), (loss, acc) = jax.lax.scan(
-        body, (aux["params"], aux["opt_state"]), (due, s_j, is_b, i_b, i_a))
+        body, (aux.params, aux.opt_state), (due, s_j, is_b, i_b, i_a))
     on = due.astype(jnp.float32)
     n_on = jnp.maximum(jnp.sum(on), 1.0)
     step = env_steps - 1
     metrics = {"disc/loss": jnp.sum(loss * on) / n_on, "disc/acc": jnp.sum(acc * on) / n_on,
                "disc/weight": reward_weight(cfg, step, T, disc_weight), "disc/lr": disc_lr(cfg, step, T)}
     if te:  # accuracy on a held-out batch (NaN until the test buffer holds one)
-      n_t = jnp.maximum(out["tsize"], 1)
+      n_t = jnp.maximum(out.tsize, 1)
       t_is_b, ti, ta = _draw(jax.random.bits(k_t, (3, bs), jnp.uint32), n_t, n_t if online else tau_a.shape[0])
-      x = jnp.where(t_is_b[:, None], out["tbuf"][ti], (out["tbuf_a"] if online else tau_a)[ta])
+      x = jnp.where(t_is_b[:, None], out.tbuf[ti], (out.tbuf_a if online else tau_a)[ta])
       t_acc = disc_loss(apply, params, x, jnp.where(t_is_b, B_LABEL, A_LABEL))[1]
-      metrics["disc/test_acc"] = jnp.where(2 * out["tsize"] >= bs, t_acc, jnp.nan)
-    out.update(params=params, opt_state=opt_state, buf=buf, ptr=ptr, size=size, env_steps=env_steps)
-    return out, metrics
+      metrics["disc/test_acc"] = jnp.where(2 * out.tsize >= bs, t_acc, jnp.nan)
+    return out.replace(params=params, opt_state=opt_state, buf=buf, ptr=ptr, size=size, env_steps=env_steps), metrics
 
   def reward_fn(aux, batch, disc_weight=None):
-    d = jax.nn.sigmoid(apply(aux["params"], inputs(batch)))
-    return shaped_reward(cfg, batch.reward, d, aux["env_steps"] - 1, T, disc_weight)
+    d = jax.nn.sigmoid(apply(aux.params, inputs(batch)))
+    return shaped_reward(cfg, batch.reward, d, aux.env_steps - 1, T, disc_weight)
 
   return Alignment(aux_init, aux_update, reward_fn, extras, apply, cfg)

@@ -18,6 +18,7 @@ from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
+from flax import struct
 
 from hdt.agents import networks as nets
 from hdt.agents.plugins import Plugin
@@ -82,31 +83,34 @@ def make_kl_term(policy_apply, mode: str = "forward", mean_only: bool = False):
   return term
 
 
-KL_REFERENCE = "kl_reference"  # its key in TrainState.aux
 KL_FLOOR = 1e-5  # the annealed weight's floor, as a fraction of kl_weight (KLSAC.learn, kl_decay)
-KL_REFERENCE_OBS_NORM = "kl_reference_obs_norm"  # the reference's observation statistics, if it has some
+
+
+@struct.dataclass
+class KLState:
+  """The KL plug-in's per-seed state (``TrainState.aux["kl"]``)."""
+  reference: Params  # the reference policy's parameters
+  reference_obs_norm: Any = None  # its observation statistics, if it has some
 
 
 def kl_plugin(policy_apply, reference_params: Params, kl_weight: float, anneal_steps: float,
               mode: str = "forward", mean_only: bool = False, reference_obs_norm: Any = None) -> Plugin:
   """The KL term as a training plug-in: ``w(env_steps) * KL`` (:func:`linear_anneal` from ``kl_weight``
   to ``kl_weight * KL_FLOOR`` at ``anneal_steps``) to a reference policy kept per seed in
-  ``TrainState.aux["kl_reference"]`` (and its observation statistics, if any, in
-  ``aux["kl_reference_obs_norm"]``); every seed starts with ``reference_params`` (no seed axis).
+  :class:`KLState` (``TrainState.aux["kl"]``); every seed starts with ``reference_params`` and
+  ``reference_obs_norm`` (no seed axis).
   ``kl_weight`` is its hyper of that name (vmappable over a grid, :mod:`hdt.agents.plugins`): the
   weight is ``kl_weight`` times the anneal from 1, which equals :func:`linear_anneal` ``(kl_weight, ...)``
   bit for bit."""
   term = make_kl_term(policy_apply, mode, mean_only)
   f32 = lambda tree: jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float32), tree)
-  state = {KL_REFERENCE: f32(reference_params)}
-  if reference_obs_norm is not None:
-    state[KL_REFERENCE_OBS_NORM] = f32(reference_obs_norm)
+  state = KLState(f32(reference_params), None if reference_obs_norm is None else f32(reference_obs_norm))
   anneal = linear_anneal(1.0, anneal_steps)
   return Plugin(
       name="kl",
-      init=lambda key, agent, seed_index: (agent, dict(state)),
+      init=lambda key, agent, seed_index: (agent, state),
       regularizer=lambda state, params, obs, obs_norm=None, kl_weight=None: term(
-          params, state[KL_REFERENCE], obs, obs_norm, state.get(KL_REFERENCE_OBS_NORM)),
+          params, state.reference, obs, obs_norm, state.reference_obs_norm),
       schedule=lambda env_steps, kl_weight: kl_weight * anneal(env_steps),
       hyper={WEIGHT: float(kl_weight)},
   )

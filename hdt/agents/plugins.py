@@ -2,9 +2,9 @@
 reference policy, a start from another policy), passed to :func:`hdt.agents.train.make_train` as a
 list that it folds over. Every hook is optional.
 
-A plug-in's state is per seed: it lives in ``TrainState.aux``, a dict that merges the state dicts of
-all plug-ins (each plug-in owns its keys; two plug-ins may not share a key), and each hook sees only
-its own plug-in's keys. Any number of plug-ins combine: each regulariser is weighted by its own
+A plug-in's state is per seed, of the plug-in's own type (any pytree, typically a ``flax.struct``
+dataclass such as :class:`hdt.agents.discriminator.DiscState`): ``TrainState.aux[<name>]``, and each
+hook sees only its own. Any number of plug-ins combine: each regulariser is weighted by its own
 schedule and logged under the plug-in's name (``<name>``, ``<name>_weight``), and each plug-in's
 transition extras are stored under its name and handed back to it alone.
 """
@@ -16,16 +16,16 @@ from typing import Any, Callable, Mapping, Sequence
 
 import jax
 
-State = dict  # a plug-in's state: a dict of pytrees (its keys in TrainState.aux)
+State = Any  # a plug-in's state: a pytree of its own type (TrainState.aux[plug-in name])
 
 
 @dataclasses.dataclass(frozen=True)
 class Plugin:
   """One method's hooks into SAC training (all optional, no-ops when None).
 
-  init(key, agent, seed_index) -> (agent, state): the plug-in's initial state; it may also set the
-    starting SACState (e.g. another policy's parameters). Called once per seed, after the SAC init;
-    ``seed_index``: the seed's place in the run's seeds (0..S-1; the same in every grid point).
+  init(key, agent, seed_index) -> (agent, state): the plug-in's initial state (None without init); it
+    may also set the starting SACState (e.g. another policy's parameters). Called once per seed, after
+    the SAC init; ``seed_index``: the seed's place in the run's seeds (0..S-1; the same in every grid point).
   update(state, transitions, env_steps, key) -> (state, metrics): once per training step, after the
     new transitions were collected (metrics are averaged over the chunk).
   reward(state, batch) -> rewards: recomputes a sampled batch's rewards before the critic target.
@@ -82,7 +82,3 @@ def sweepable(plugins: Sequence[Plugin], taken: Sequence[str] = ()) -> tuple[str
                          f"give it another name")
       seen[k] = f"plug-in {p.name!r}"
   return tuple(k for p in plugins for k in p.hyper)
-
-
-def own(aux: dict, keys: Sequence[str]) -> State:
-  return {k: aux[k] for k in keys}

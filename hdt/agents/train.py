@@ -61,7 +61,7 @@ class TrainState:
   key: jax.Array
   env_steps: jax.Array  # int32, env steps taken (summed over parallel envs)
   episode_return: jax.Array  # (num_envs,) float32, running return of the current training episodes
-  aux: Any  # the plug-ins' per-seed states merged in one dict (e.g. a discriminator, a KL reference)
+  aux: Any  # {plug-in name: its per-seed state} (e.g. a DiscState, a KLState); {} without plug-ins
 
 
 class Trainer(NamedTuple):
@@ -178,8 +178,8 @@ def make_train(
   """Builds the pure functions ``init``, ``run_chunk``, ``evaluate`` and ``train``.
 
   plugins: :class:`hdt.agents.plugins.Plugin` objects (init, update, reward, regularizer, schedule,
-    transition_extras; each optional), folded over in order. Their per-seed states are merged into
-    ``TrainState.aux``. Plug-in ``i`` gets the key :func:`plugin_key` ``(seed key, i)`` and the seed's
+    transition_extras; each optional), folded over in order. The per-seed state of each plug-in with an
+    ``init`` is ``TrainState.aux[<name>]``. Plug-in ``i`` gets the key :func:`plugin_key` ``(seed key, i)`` and the seed's
     index at init and a per-step key derived the same way. Every regulariser is added to the actor
     loss times its own schedule, logged as ``<name>`` and ``<name>_weight``; every plug-in's
     transition extras are stored under its name and handed back to it alone. Their declared
@@ -205,24 +205,8 @@ def make_train(
     spec = spec.replace(extras=jax.tree_util.tree_map(
         lambda s: np.zeros(s.shape, s.dtype), jax.eval_shape(extras_fn, one, one)))
 
-  # Which keys of TrainState.aux each plug-in owns (from the shapes of its initial state).
-  # traced only for a plug-in with an init: a warm start of a plain run traces nothing here
-  agent_shape = functools.cache(lambda: jax.eval_shape(functools.partial(init_sac_state, networks, config),
-                                                       jax.random.PRNGKey(0)))
-  owned = []
-  for p in plugins:
-    state = {} if p.init is None else jax.eval_shape(lambda k, a: p.init(k, a, 0)[1], jax.random.PRNGKey(0),
-                                                     agent_shape())
-    if not isinstance(state, dict):
-      raise TypeError(f"plug-in {p.name!r}: its initial state must be a dict (its keys in TrainState.aux), "
-                      f"got {type(state).__name__}")
-    keys = list(state)
-    taken = [k for k in keys if any(k in o for o in owned)]
-    if taken:
-      raise ValueError(f"plug-in {p.name!r} uses TrainState.aux keys {taken} that another plug-in owns")
-    owned.append(keys)
-  regularizing = [(p, keys) for p, keys in zip(plugins, owned) if p.regularizer is not None]
-  rewarding = [(p, keys) for p, keys in zip(plugins, owned) if p.reward is not None]
+  regularizing = [p for p in plugins if p.regularizer is not None]
+  rewarding = [p for p in plugins if p.reward is not None]
   value = plugin_lib.values  # a plug-in's hyper values: hyper's (grid point) or its defaults
   # what a plug-in sees of a transition's (or a batch's) extras: its own
   seen = lambda p, tr: tr if not extending else tr.replace(extras=tr.extras.get(p.name))
@@ -230,11 +214,11 @@ def make_train(
   def weights(env_steps, hyper) -> dict:
     """Each regulariser's weight at ``env_steps``: its own schedule's, 1 without one."""
     return {p.name: jnp.ones((), jnp.float32) if p.schedule is None else
-            jnp.asarray(p.schedule(env_steps, **value(p, hyper)), jnp.float32) for p, _ in regularizing}
+            jnp.asarray(p.schedule(env_steps, **value(p, hyper)), jnp.float32) for p in regularizing}
 
   def plugin_reward(aux, batch, hyper):
-    for p, keys in rewarding:
-      r = p.reward(plugin_lib.own(aux, keys), seen(p, batch), **value(p, hyper))
+    for p in rewarding:
+      r = p.reward(aux.get(p.name), seen(p, batch), **value(p, hyper))
       batch = batch.replace(reward=r.astype(batch.reward.dtype))
     return batch.reward
 
@@ -244,8 +228,8 @@ def make_train(
     reg = None
     if regularizing:
       def reg(params, obs, *obs_norm):  # obs_norm: only with a normaliser (hdt.agents.sac)
-        terms = {p.name: p.regularizer(plugin_lib.own(aux, keys), params, obs, *obs_norm, **value(p, hyper))
-                 for p, keys in regularizing}
+        terms = {p.name: p.regularizer(aux.get(p.name), params, obs, *obs_norm, **value(p, hyper))
+                 for p in regularizing}
         total = sum(reg_weights[name] * term for name, term in terms.items())
         return total, terms | {f"{name}_weight": w for name, w in reg_weights.items()}
     return make_update(networks, config, act_size, actor_regularizer=reg,
@@ -255,17 +239,17 @@ def make_train(
     aux = {}
     for i, p in enumerate(plugins):
       if p.init is not None:
-        agent, state = p.init(plugin_key(key, i), agent, seed_index)
-        aux.update(state)
+        agent, aux[p.name] = p.init(plugin_key(key, i), agent, seed_index)
     return agent, aux
 
   def plugins_update(aux, transitions, env_steps, key, hyper):
     aux, metrics = dict(aux), {}
-    for i, (p, keys) in enumerate(zip(plugins, owned)):
+    for i, p in enumerate(plugins):
       if p.update is not None:
-        state, m = p.update(plugin_lib.own(aux, keys), seen(p, transitions), env_steps, plugin_key(key, i),
+        state, m = p.update(aux.get(p.name), seen(p, transitions), env_steps, plugin_key(key, i),
                             **value(p, hyper))
-        aux.update(state)
+        if p.name in aux:
+          aux[p.name] = state
         metrics.update(m)
     return aux, metrics
 

@@ -99,7 +99,7 @@ def align_stage(agent: str, imitate: AlignSpec | str | Path, config: SACConfig |
                              discriminator=dataclasses.asdict(disc))
   return Stage(env, config, card, f"align {agent}<-{card_a.agent}", plugins=(al.plugin,),
                # kept with the LL so the alignment can be inspected (load_discriminator) or resumed
-               save_extra=lambda ts: {"discriminator": ts.aux["params"]}, point_card=_point_card,
+               save_extra=lambda ts: {"discriminator": ts.aux["discriminator"].params}, point_card=_point_card,
                legacy_meta={"discriminator": disc_lib.ADDED_FIELDS})
 
 

@@ -359,21 +359,21 @@ class SavedState(NamedTuple):
   best: Any  # structured as best_template; None when not asked for or not saved
 
 
-def _check_fits(d: Path, got: list, want: list) -> None:
+def _check_fits(d: Path, got: list, want: list, written_by: str | None) -> None:
   """Refuses a saved state whose leaf specs ``got`` are not the specs ``want`` this run needs."""
   if got != want:
     fmt = lambda spec: f"{spec[0]} {spec[2]}{spec[1]}" if spec else "nothing"
     saved, needed = next(((g, w) for g, w in zip(got, want) if g != w),
                          (got[len(want):len(want) + 1], want[len(got):len(got) + 1]))
+    by = (f"hdt {written_by} wrote it, and this is hdt {__version__}" if written_by != __version__
+          else "it was written by another configuration")
     raise CheckpointError(f"the training state in {d} does not fit this run (saved {fmt(saved)} where "
-                          f"this run needs {fmt(needed)}): it was written by another configuration or hdt "
-                          f"version; start a new run in another out= directory")
+                          f"this run needs {fmt(needed)}): {by}; start a new run in another out= directory")
 
 
 # Where a state saved when the statistics lived inside the networks kept them (keystr prefixes, old ->
 # new); their other copies (critics, target critics, Adam moments) are dropped on load.
 _LEGACY_NORM = ((".agent.policy_params['obs_norm']", ".agent.obs_norm"),
-                (".aux['kl_reference']['obs_norm']", ".aux['kl_reference_obs_norm']"),
                 ("['policy']['obs_norm']", "['obs_norm']"))
 
 
@@ -418,7 +418,7 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
     want = _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat])
     sources = _legacy_sources(got, want)
     if sources is None:
-      _check_fits(d, got, want)
+      _check_fits(d, got, want, info.get("hdt_version"))
       sources = [[i] for i in range(len(want))]
     return treedef, sources, [tuple(spec[1]) for spec in want]
 
