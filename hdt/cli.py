@@ -593,7 +593,8 @@ def cmd_sweep(args) -> int:
   from hdt.transfer import pipeline, rundir, sweep
   from hdt.transfer.align import AlignSpec
   fields = {f.name: f for f in dataclasses.fields(SACConfig)}
-  weights = sweep.WEIGHTS.get(args.level, ())  # the level's plug-in weights (kl_weight, disc_weight)
+  lv = sweep.level_of(args.level)
+  weights = lv.weight_names  # the plug-in weights the level's stage lets a grid vary
   grid = {}
   for g in args.grid:
     if "=" not in g:
@@ -614,33 +615,26 @@ def cmd_sweep(args) -> int:
   if both:
     raise CLIError(f"{', '.join('--' + b.replace('_', '-') for b in both)} is also swept by --grid: "
                    f"give each field once, as an option or in the grid")
-  if args.level in ("low", "full", "align") and not args.agent:
-    raise CLIError(f"sweep {args.level} needs --agent")
-  if args.level in ("high", "full", "finetune") and not args.task:
-    raise CLIError(f"sweep {args.level} needs --task")
-  if args.level in ("high", "finetune") and not args.low:
-    raise CLIError(f"sweep {args.level} needs --low RUN")
-  if args.level == "finetune" and not args.high:
-    raise CLIError("sweep finetune needs --high RUN (A's HL)")
-  if args.level == "finetune":
+  missing = [n for n in lv.needs if getattr(args, n) is None]
+  if missing:
+    raise CLIError(f"sweep {args.level} needs {' and '.join(_NEEDS[n] for n in missing)}")
+  if "high" in lv.needs:
     _check_agent_task(task=args.task)
     _finetune_spec(args)  # checked before anything is written
-  if args.level == "align" and not args.imitate:
-    raise CLIError("sweep align needs --imitate RUN (A's LL)")
   _check_agent_task(args.agent, args.task)
   overrides = _key_values(args.set, "--set")
   pipeline.check_env_overrides(overrides, args.agent, args.task or "reach")
   reads = {k: getattr(args, k) for k in ("low", "high", "imitate") if getattr(args, k) is not None}
   root = _out_dir(args, f"sweep-{args.level}", kind="sweep", reads=reads)
   seeds = _seeds(args)
-  if args.level in ("high", "finetune"):
+  if "low" in lv.needs:
     pipeline.load_low(args.low, args.low_seed)  # checked to be a usable LL before anything is written
-  if args.level == "finetune":
+  if "high" in lv.needs:
     from hdt.transfer.finetune import load_high
     load_high(args.high)  # checked to be an HL
-  disc = _disc(args, pipeline.load_low(args.imitate)[1].agent) if args.level == "align" else None
+  disc = _disc(args, pipeline.load_low(args.imitate)[1].agent) if "imitate" in lv.needs else None
   imitate = {"imitate": AlignSpec(args.imitate, disc)} if disc is not None else {}
-  sweep.check_weights(args.level, [{k: v} for k in weights if k in grid for v in grid[k]], imitate)
+  sweep.check_weights(lv, [{k: v} for k in weights if k in grid for v in grid[k]], imitate)
   with rundir.claim(root, "sweep", overwrite=args.overwrite, reads=reads):
     rows = _sweep(args, grid, root, seeds, overrides, disc)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
@@ -649,18 +643,34 @@ def cmd_sweep(args) -> int:
   return 0
 
 
+# what `hdt sweep` says a level needs (hdt.transfer.runner.Level.needs), and how it passes each
+_NEEDS = {"agent": "--agent", "task": "--task", "low": "--low RUN", "high": "--high RUN (A's HL)",
+          "imitate": "--imitate RUN (A's LL)"}
+
+
+def _stage_value(args, name: str, disc):
+  """The stage keyword ``name`` (one of Level.needs) from the command line."""
+  from hdt.transfer.align import AlignSpec
+  from hdt.transfer.card import LowRef
+  if name == "low":
+    return LowRef(args.low, args.low_seed, args.low_params)
+  if name == "imitate":
+    return AlignSpec(args.imitate, disc, n_offline=args.n_offline, imitate_params=args.imitate_params)
+  return getattr(args, name)
+
+
 def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> list:
   import numpy as np
   from hdt.envs.tasks import get_task
   from hdt.report import fmt
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import sweep
-  from hdt.transfer.align import AlignSpec
-  from hdt.transfer.card import LowRef, PolicyCard
+  from hdt.transfer.card import PolicyCard
   from hdt.transfer.runner import RunOptions
-  level = {"align": "low"}.get(args.level, args.level)  # of the SAC config
+  lv = sweep.level_of(args.level)
+  level = lv.sac_level or lv.name  # of the SAC config
   extra = {}
-  if args.level == "finetune":  # as `hdt finetune`, and the preset's task options
+  if "high" in lv.needs:  # finetuning, as `hdt finetune`: A's SAC, and the preset's task options
     a = PolicyCard.from_json(ckpt.load_meta(args.high), args.high)
     extra = {k: v for k, v in _a_sac(a).items() if k not in grid}
     overrides = configs.task_options(args.preset, args.task) | overrides
@@ -668,17 +678,13 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> l
   for values in itertools.product(*grid.values()):
     point = dict(zip(grid, values))
     names.append(",".join(f"{k_}={v}" for k_, v in point.items()))
-    weights = {k: float(v) for k, v in point.items() if k in sweep.WEIGHTS.get(args.level, ())}
+    weights = {k: float(v) for k, v in point.items() if k in lv.weight_names}
     sac = {k: v for k, v in point.items() if k not in weights}
     runs.append((sac_config(args, level, args.agent, args.task if level != "low" else None, **extra, **sac),
                  root / names[-1].replace("/", "_"), weights))
-  low = LowRef(args.low, args.low_seed, args.low_params) if args.low is not None else None
-  stage = {"low": lambda: dict(agent=args.agent), "high": lambda: dict(task=args.task, low=low),
-           "full": lambda: dict(agent=args.agent, task=args.task),
-           "finetune": lambda: dict(high=args.high, low=low, task=args.task, spec=_finetune_spec(args)),
-           "align": lambda: dict(agent=args.agent, imitate=AlignSpec(args.imitate, disc, n_offline=args.n_offline,
-                                                                      imitate_params=args.imitate_params))
-           }[args.level]()
+  stage = {n: _stage_value(args, n, disc) for n in lv.needs}
+  if "high" in lv.needs:
+    stage["spec"] = _finetune_spec(args)
   # points differing only in SWEEPABLE fields (learning rates, tau, gamma, reward scale, target entropy)
   # or the plug-in weights train as one vmapped program
   options = RunOptions(seeds=seeds, quiet=args.quiet)  # each grid point's run is new: the sweep was claimed whole

@@ -135,3 +135,19 @@ def test_weights_as_hyper_give_the_numbers_of_before():
     old = jax.jit(lambda: D.reward_weight(cfg, steps, 2000))()  # training runs jitted
     np.testing.assert_array_equal(jax.jit(lambda: D.reward_weight(cfg, steps, 2000, 0.3))(), old)
     np.testing.assert_array_equal(jax.jit(lambda w: D.reward_weight(cfg, steps, 2000, w))(jnp.float32(0.3)), old)
+
+
+def test_every_stage_declares_its_level_and_the_cli_offers_each():
+  """Each stage module declares its Level (what it needs, the weights a grid may vary); `hdt sweep`
+  offers exactly those levels, and a weight no stage declares is refused by name."""
+  from hdt.cli import build_parser
+  from hdt.transfer import sweep as sweep_lib
+  sub = next(a for a in build_parser()._subparsers._group_actions[0].choices["sweep"]._actions if a.dest == "level")
+  assert tuple(sub.choices) == tuple(sweep_lib.LEVELS)
+  assert sweep_lib.LEVELS["finetune"].weight_names == ("kl_weight",)
+  assert sweep_lib.LEVELS["align"].weight_names == ("disc_weight",)
+  assert all(not sweep_lib.LEVELS[n].weights for n in ("low", "high", "full"))
+  with pytest.raises(ValueError, match=r"sweep low: \['kl_weight'\] cannot be varied"):
+    sweep_lib.check_weights(sweep_lib.LEVELS["low"], [{"kl_weight": 1.0}], {})
+  with pytest.raises(ValueError, match="level='mid': sweep trains 'low', 'high'"):
+    sweep_lib.level_of("mid")

@@ -17,7 +17,7 @@ from hdt.envs import make
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.card import AlignedTo, PolicyCard, load_low
-from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
+from hdt.transfer.runner import Level, RunOptions, RunResult, Stage, Weight, run_stage
 
 # The authors imitate A's best model (hierarchical.py DiscriminatorEnv: load(policy, ..., best=True);
 # final when the run kept no best).
@@ -154,3 +154,13 @@ def _policy_inputs(env, fn, policy, n: int, key, num_envs: int, include_z: bool)
     return x.reshape(-1, size)
 
   return np.asarray(rollout(key))[:n]
+
+
+def _check_disc_weight(value, stage: dict) -> None:
+  """The discriminator's initial weight must be one its DiscConfig accepts ([0, 1])."""
+  disc = AlignSpec.of(stage["imitate"]).disc if stage.get("imitate") is not None else None
+  dataclasses.replace(disc or DiscConfig(), weight=value)
+
+
+ALIGN = Level("align", align_stage, needs=("agent", "imitate"), sac_level="low",
+              weights=(Weight(disc_lib.WEIGHT, check=_check_disc_weight),))

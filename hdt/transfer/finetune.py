@@ -39,14 +39,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from hdt.agents import train as sac_train
-from hdt.agents.kl import MODES, kl_plugin
+from hdt.agents.kl import MODES, WEIGHT as KL_WEIGHT, kl_plugin
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig, make_optimizers
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import configs
 from hdt.transfer.card import FinetunedFrom, LowRef, PolicyCard, check_level
 from hdt.transfer.pipeline import high_env_with_low, sac_extras
-from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
+from hdt.transfer.runner import Level, RunOptions, RunResult, Stage, Weight, run_stage
 
 INITS = ("sac", "policy")
 # The authors start finetuning from A's final model and tie it to A's best (module docstring).
@@ -261,3 +261,15 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
                 anneal_env_steps=float(anneal_steps))
   label = f"finetune {card_a.agent}->{env.env.agent.name} {task} kl_weight={kl_weight:g}"
   return Stage(env, config, card, label, plugins=tuple(plugins), save_extra=sac_extras)
+
+
+def _kl_for_points(stage: dict, values: list) -> dict:
+  """Points of one program share one KL plug-in, which exists only for a weight > 0: built with their
+  largest weight (each point's own is its hyper value)."""
+  spec = stage.get("spec", FinetuneSpec())
+  return stage | {"spec": dataclasses.replace(spec, kl_weight=max(values) or 1.0)}
+
+
+FINETUNE = Level("finetune", finetune_stage, needs=("high", "low", "task"),
+                 weights=(Weight(KL_WEIGHT, check=lambda value, stage: check_kl_weight(value),
+                                 prepare=_kl_for_points),))

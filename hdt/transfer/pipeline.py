@@ -22,7 +22,7 @@ from hdt.transfer import configs
 from hdt.transfer.align import AlignSpec, align_low
 from hdt.transfer.card import LOW_PARAMS, LowRef, PolicyCard, load_low, low_policy_fn  # noqa: F401 (part of this API)
 from hdt.transfer.hierarchy import HighLevelEnv
-from hdt.transfer.runner import RunOptions, RunResult, Stage, run_stage
+from hdt.transfer.runner import Level, RunOptions, RunResult, Stage, run_stage
 
 
 # Options that only make sense positive (a zero k or box later breaks the HL over this LL).
@@ -137,3 +137,8 @@ def full_stage(agent: str, task: str, config: SACConfig | None = None, backend: 
   config = configs.stage_default("full", backend, agent, task) if config is None else config
   card = PolicyCard.from_env(env, "full", config, env_overrides=env_overrides)
   return Stage(env, config, card, f"full {agent}/{task}")
+
+
+LOW = Level("low", low_stage, needs=("agent",))
+HIGH = Level("high", high_stage, needs=("task", "low"))
+FULL = Level("full", full_stage, needs=("agent", "task"))

@@ -61,6 +61,32 @@ class Stage:
 
 
 @dataclasses.dataclass(frozen=True)
+class Weight:
+  """A plug-in weight that a stage lets a grid vary, vmapped like the SAC fields of SWEEPABLE."""
+
+  name: str  # the plug-in's hyper name: also the --grid name, the card field and the metric column
+  check: Callable[[float, dict], None]  # check(value, stage keywords) refuses (one line) what the stage would
+  # stage keywords for a group of points trained as one program, given their values (None: as given)
+  prepare: Callable[[dict, list], dict] | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Level:
+  """A kind of stage as a sweep and the CLI see it: how it is built, what it needs, what a grid may vary.
+  Each stage module declares its own (``pipeline.LOW``, ``finetune.FINETUNE``, ``align.ALIGN``, ...)."""
+
+  name: str
+  stage: Callable[..., Stage]  # low_stage, high_stage, ...: (config=, backend=, **keywords) -> Stage
+  needs: tuple[str, ...]  # its required keywords, among agent, task, low, high, imitate
+  weights: tuple[Weight, ...] = ()
+  sac_level: str | None = None  # whose SAC defaults it trains with (default: its name)
+
+  @property
+  def weight_names(self) -> tuple[str, ...]:
+    return tuple(w.name for w in self.weights)
+
+
+@dataclasses.dataclass(frozen=True)
 class RunOptions:
   """How a stage runs, whatever it trains.
 
