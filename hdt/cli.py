@@ -755,15 +755,16 @@ def cmd_quickstart(args) -> int:
     return _quickstart(args, root, seeds, quiet)
 
 
-# Rows of the transfer table: (task, label, HL run ("here": the one trained here), LL run, uniform
-# random sub-goals instead of the HL's, paper's number: Table 1's zero-shot and own-HL cells).
+# Rows of the transfer table: (task, label, HL run ("here": the one trained here), LL run ("legged:AGENT":
+# hdt.paper.runs.LEGGED_LOW's LL), uniform random sub-goals instead of the HL's, paper's number: Table 1's
+# zero-shot and own-HL cells).
 QUICKSTART_TRANSFERS = (  # task, HL (named after its run), HL run, LL run, random sub-goals, paper
     ("push1", "3Link's own HL", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", False, ".96 ± .02"),
     ("push1", "4Link HL, zero-shot", "zoo:arm4/push1_500k", "zoo:arm_point/low", False, ".26 ± .17"),
     ("push1", "PM HL, zero-shot", "zoo:arm_point/push1_1p2m", "zoo:arm3/low_paper", False, ".17 ± .08"),
     ("push1", "uniform random sub-goals", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", True, "—"),
-    ("waypoint", "PM HL (trained here), zero-shot", "here", "zoo:ant/low_fast_600k", False, "483 ± 39"),
-    ("waypoint", "uniform random sub-goals", "here", "zoo:ant/low_fast_600k", True, "—"),
+    ("waypoint", "PM HL (trained here), zero-shot", "here", "legged:ant", False, "483 ± 39"),
+    ("waypoint", "uniform random sub-goals", "here", "legged:ant", True, "—"),
 )
 
 
@@ -771,6 +772,7 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   import json
 
   from hdt import atomic
+  from hdt.paper.runs import LEGGED_LOW
   from hdt.report import fmt, markdown_table, run_report
   from hdt.transfer import zoo
   from hdt.transfer.evaluate import compose, evaluate, random_actions
@@ -793,6 +795,8 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   rows, table = [], []
   available = set(zoo.entry_names())
   for task, label, hl_run, ll_run, random, paper in QUICKSTART_TRANSFERS:
+    if ll_run.startswith("legged:"):
+      ll_run = zoo.PREFIX + LEGGED_LOW[ll_run[len("legged:"):]]
     if ll_run[len(zoo.PREFIX):] not in available:
       continue  # that LL is not in this checkout's zoo
     if hl_run.startswith(zoo.PREFIX) and not random:
