@@ -26,3 +26,12 @@ def test_bars_plots_matrix_cells_beside_the_paper(tmp_path):
   assert (float(row["mean"]), float(row["std"])) == (0.05, 0.07)
   with pytest.raises(SystemExit, match="no cell 'x'"):
     bars.main([f"g|m|-={m}#x", "--out", str(tmp_path / "bad")])
+
+
+def test_ll_speed_ceiling_is_the_share_of_goals_within_reach():
+  """The goals an LL can reach at a speed: those uniform in the ±delta_max box within its radius."""
+  import math
+
+  from experiments.studies.ll_speed import reach_ceiling
+  assert reach_ceiling(2.0, 4.0) == pytest.approx(math.pi * 4 / 64, abs=0.005)
+  assert reach_ceiling(4.0 * math.sqrt(2), 4.0) == 1.0 and reach_ceiling(0.0, 4.0) == 0.0
