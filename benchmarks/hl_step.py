@@ -1,6 +1,6 @@
 """Where an HL step over a legged LL goes, and what it costs against the LL steps it runs.
 
-    python benchmarks/hl_step.py [--low zoo:ant/low_fast_600k] [--tasks waypoint maze] [--envs 8] [--chunks 3]
+    python benchmarks/hl_step.py [--low zoo:ant/low_fast_1200k] [--tasks waypoint maze] [--envs 8] [--chunks 3]
 
 For each task, on native MuJoCo with the HL's training setting (``configs.high_config(task)``,
 ``--envs`` parallel envs, one HL update per HL decision as the authors' SB2 SAC), per HL decision:
@@ -106,7 +106,7 @@ def measure(task: str, low: str, envs: int, chunks: int, reps: int, decisions: i
 
 def main(argv=None) -> int:
   ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  ap.add_argument("--low", default="zoo:ant/low_fast_600k")
+  ap.add_argument("--low", default="zoo:ant/low_fast_1200k")
   ap.add_argument("--tasks", nargs="+", default=["waypoint", "maze"])
   ap.add_argument("--envs", type=int, default=8)
   ap.add_argument("--chunks", type=int, default=3)

@@ -275,8 +275,8 @@ class Full(_Recipe):
 
 Recipe = Union[Low, High, Finetune, Full]
 # The zoo's legged LLs, behind every table's and figure's legged cells at the paper preset: hdt's fast
-# settings (LayerNorm critics, RESULTS.md), 600k of the paper's 2.5M env steps.
-LEGGED_LOW = {"ant": "ant/low_fast_600k", "quadruped": "quadruped/low_fast_600k"}
+# settings (LayerNorm critics, RESULTS.md), 1.2M of the paper's 2.5M env steps.
+LEGGED_LOW = {"ant": "ant/low_fast_1200k", "quadruped": "quadruped/low_fast_1200k"}
 
 USABLE = ("zoo", "reused", "resumed", "trained", "reuse", "resume", "train")  # executed, or planned to be
 
