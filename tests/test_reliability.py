@@ -109,7 +109,7 @@ def test_resume_equals_uninterrupted_run(uninterrupted, resumed):
   # The whole final TrainState (replay, env states, optimiser states, keys, ...) matches too.
   (ts_a, hist_a, info_a), (ts_b, hist_b, info_b) = saved_state(uninterrupted.run_dir), saved_state(resumed.run_dir)
   assert_trees_equal(ts_a, ts_b)
-  assert int(ts_b.aux["size"][0]) > 0 and "disc/loss" in h_res  # the plug-in state was live
+  assert int(ts_b.aux["discriminator"].size[0]) > 0 and "disc/loss" in h_res  # the plug-in state was live
   assert info_a["env_steps"] == info_b["env_steps"] == CFG.total_env_steps
   # The saved final state holds the real params and the saved checkpoints hold them too.
   assert_trees_equal(ts_b.agent.policy_params, resumed.params["policy"])
