@@ -636,7 +636,7 @@ def cmd_sweep(args) -> int:
   imitate = {"imitate": AlignSpec(args.imitate, disc)} if disc is not None else {}
   sweep.check_weights(lv, [{k: v} for k in weights if k in grid for v in grid[k]], imitate)
   with rundir.claim(root, "sweep", overwrite=args.overwrite, reads=reads):
-    rows = _sweep(args, grid, root, seeds, overrides, disc)
+    rows = _sweep(args, lv, grid, root, seeds, overrides, disc)
     table = markdown_table(["grid point", "metric", "final eval (mean ± std)", "run"], rows)
     on_writer(lambda: atomic.write_text(root / "sweep.md", table + "\n"), f"writing {root / 'sweep.md'}")
   print(table)
@@ -659,7 +659,7 @@ def _stage_value(args, name: str, disc):
   return getattr(args, name)
 
 
-def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> list:
+def _sweep(args, lv, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> list:
   import numpy as np
   from hdt.envs.tasks import get_task
   from hdt.report import fmt
@@ -667,7 +667,6 @@ def _sweep(args, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> l
   from hdt.transfer import sweep
   from hdt.transfer.card import PolicyCard
   from hdt.transfer.runner import RunOptions
-  lv = sweep.level_of(args.level)
   level = lv.sac_level or lv.name  # of the SAC config
   extra = {}
   if "high" in lv.needs:  # finetuning, as `hdt finetune`: A's SAC, and the preset's task options
@@ -755,24 +754,25 @@ def cmd_quickstart(args) -> int:
     return _quickstart(args, root, seeds, quiet)
 
 
-# Rows of the transfer table: (task, label, HL run ("here": the one trained here), LL run ("legged:AGENT":
-# hdt.paper.runs.LEGGED_LOW's LL), uniform random sub-goals instead of the HL's, paper's number: Table 1's
-# zero-shot and own-HL cells).
-QUICKSTART_TRANSFERS = (  # task, HL (named after its run), HL run, LL run, random sub-goals, paper
-    ("push1", "3Link's own HL", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", False, ".96 ± .02"),
-    ("push1", "4Link HL, zero-shot", "zoo:arm4/push1_500k", "zoo:arm_point/low", False, ".26 ± .17"),
-    ("push1", "PM HL, zero-shot", "zoo:arm_point/push1_1p2m", "zoo:arm3/low_paper", False, ".17 ± .08"),
-    ("push1", "uniform random sub-goals", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", True, "—"),
-    ("waypoint", "PM HL (trained here), zero-shot", "here", "legged:ant", False, "483 ± 39"),
-    ("waypoint", "uniform random sub-goals", "here", "legged:ant", True, "—"),
-)
+def _quickstart_transfers() -> tuple:
+  """Rows of the transfer table: (task, label, HL run ("here": the one trained here), LL run, uniform
+  random sub-goals instead of the HL's, paper's number: Table 1's zero-shot and own-HL cells)."""
+  from hdt.paper.runs import LEGGED_LOW
+  ant = "zoo:" + LEGGED_LOW["ant"]
+  return (
+      ("push1", "3Link's own HL", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", False, ".96 ± .02"),
+      ("push1", "4Link HL, zero-shot", "zoo:arm4/push1_500k", "zoo:arm_point/low", False, ".26 ± .17"),
+      ("push1", "PM HL, zero-shot", "zoo:arm_point/push1_1p2m", "zoo:arm3/low_paper", False, ".17 ± .08"),
+      ("push1", "uniform random sub-goals", "zoo:arm3/push1_500k", "zoo:arm3/low_paper", True, "—"),
+      ("waypoint", "PM HL (trained here), zero-shot", "here", ant, False, "483 ± 39"),
+      ("waypoint", "uniform random sub-goals", "here", ant, True, "—"),
+  )
 
 
 def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   import json
 
   from hdt import atomic
-  from hdt.paper.runs import LEGGED_LOW
   from hdt.report import fmt, markdown_table, run_report
   from hdt.transfer import zoo
   from hdt.transfer.evaluate import compose, evaluate, random_actions
@@ -794,9 +794,7 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
                        [["waypoint", "PM HL", "PM LL", fmt(own["return_mean"], own["return_std"]), "1021 ± 43"]]))
   rows, table = [], []
   available = set(zoo.entry_names())
-  for task, label, hl_run, ll_run, random, paper in QUICKSTART_TRANSFERS:
-    if ll_run.startswith("legged:"):
-      ll_run = zoo.PREFIX + LEGGED_LOW[ll_run[len("legged:"):]]
+  for task, label, hl_run, ll_run, random, paper in _quickstart_transfers():
     if ll_run[len(zoo.PREFIX):] not in available:
       continue  # that LL is not in this checkout's zoo
     if hl_run.startswith(zoo.PREFIX) and not random:

@@ -365,8 +365,8 @@ def _check_fits(d: Path, got: list, want: list, written_by: str | None) -> None:
     fmt = lambda spec: f"{spec[0]} {spec[2]}{spec[1]}" if spec else "nothing"
     saved, needed = next(((g, w) for g, w in zip(got, want) if g != w),
                          (got[len(want):len(want) + 1], want[len(got):len(got) + 1]))
-    by = (f"hdt {written_by} wrote it, and this is hdt {__version__}" if written_by != __version__
-          else "it was written by another configuration")
+    by = (f"{f'hdt {written_by}' if written_by else 'an older hdt'} wrote it, and this is hdt {__version__}"
+          if written_by != __version__ else "it was written by another configuration")
     raise CheckpointError(f"the training state in {d} does not fit this run (saved {fmt(saved)} where "
                           f"this run needs {fmt(needed)}): {by}; start a new run in another out= directory")
 
