@@ -4,7 +4,8 @@
 
 For each LL run (a run directory or zoo:NAME; its best parameters), deterministic reach episodes
 without auto-reset: the start and final distance to the goal, the speed towards it (up to the first step within epsilon), the control cost
-and reward per step, the share that comes within the reach epsilon at some step, and the ceiling that
+and reward per step, the share that comes within the reach epsilon at some step (overall and by the
+goal's start distance), and the ceiling that
 speed sets: the share of the LL's goals (uniform in the ±delta_max box) within
 ``epsilon + speed x episode length``.
 """
@@ -53,9 +54,14 @@ def measure(run: str, episodes: int = 64, horizon: int | None = None, key: int =
   last = np.where(hit.any(axis=1), hit.argmax(axis=1), steps - 1)
   rows = np.arange(len(dist))
   speed = float(np.mean((start - dist[rows, last]) / ((last + 1) * float(env.dt))))
+  reached = dist.min(axis=1) < eps
+  # reach success by the goal's start distance: what the LL does with goals its speed allows
+  edges = [0.0, 1.0, 2.0, 3.0, 4.0, np.inf]
+  by_dist = {f"{lo:g}-{hi:g} m": dict(episodes=int(m.sum()), reached=float(reached[m].mean()) if m.any() else None)
+             for lo, hi in zip(edges, edges[1:]) for m in [(start >= lo) & (start < hi)]}
   return dict(run=run, agent=policy.agent, steps=steps, seconds=seconds, episodes=episodes,
               start_dist=float(start.mean()), final_dist=float(end.mean()), speed=speed,
-              reached=float(np.mean(dist.min(axis=1) < eps)), ctrl_cost_per_step=float(ctrl.mean()),
+              reached=float(reached.mean()), reached_by_start_dist=by_dist, ctrl_cost_per_step=float(ctrl.mean()),
               reward_per_step=float(reward.mean()),
               ceiling_at_this_speed=reach_ceiling(eps + speed * seconds, box),
               speed_for_half=(math.sqrt(0.5 * (2 * box) ** 2 / math.pi) - eps) / seconds)
@@ -75,6 +81,8 @@ def main(argv=None) -> None:
           f"(ceiling at this speed {r['ceiling_at_this_speed']:.2f}; half the goals need "
           f"{r['speed_for_half']:.2f} m/s); per step: ctrl cost {r['ctrl_cost_per_step']:.2f}, "
           f"reward {r['reward_per_step']:.2f}")
+    print("  reached by start distance: " + ", ".join(
+        f"{k} {v['reached']:.2f} ({v['episodes']})" for k, v in r["reached_by_start_dist"].items() if v["episodes"]))
   if args.json:
     from hdt import atomic
     atomic.write_text(args.json, json.dumps(rows, indent=1) + "\n")
