@@ -78,7 +78,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   meta = ckpt.load_meta(run)  # a readable checkpoint of this hdt's format
   if meta.get("level") == "high":
     if not (isinstance(low, str) and low.startswith(PREFIX)):
-      raise ZooError(f"{run} is a high level: export its LL first and pass low='zoo:NAME'")
+      raise ZooError(f"{run} is a high level: export its LL first and pass it as low='zoo:NAME' (CLI: --low zoo:NAME)")
     resolve(low)
   dest = names.ZOO_DIR / name
   if dest.exists() and not overwrite:
