@@ -21,7 +21,7 @@ ZOO_A_HIGH = {("point", "waypoint"): "point/waypoint", ("point", "maze"): "point
 ZOO_B_LOW = {**LEGGED_LOW, "arm3": "arm3/low_paper",
              "arm4": "arm4/low_paper", ("arm4", "insert"): "arm4/low_insert_1p2m",
              ("arm3", "arm_point"): "arm3/low_aligned_pm_1p2m", ("arm3", "arm2"): "arm3/low_aligned_arm2_1p2m",
-             ("arm4", "arm3"): "arm4/low_aligned_arm3_1p2m"}
+             ("arm4", "arm3"): "arm4/low_aligned_arm3_1p2m", ("arm4", "arm2"): "arm4/low_aligned_arm2_1p2m"}
 
 # (A, B, the paper's zero-shot, discrim) per part
 PAPER = {
@@ -68,4 +68,4 @@ def parts(pr: Preset) -> tuple[Part, ...]:
 TABLE = Table("table2", "Table 2: discriminative LL alignment", parts,
               note="Aligned LLs use A's discriminator settings (offline data for navigation, online for "
                    "manipulation, the paper's learning rates and weights); at the paper preset the zoo holds the "
-                   "PM → 3Link, 2Link → 3Link and 3Link → 4Link aligned LLs.")
+                   "PM → 3Link, 2Link → 3Link, 2Link → 4Link and 3Link → 4Link aligned LLs.")
