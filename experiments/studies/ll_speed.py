@@ -51,10 +51,10 @@ def measure(run: str, episodes: int = 64, horizon: int | None = None, key: int =
   eps, box = float(env.agent.reach_eps), float(env.agent.delta_max)
   # walking speed: up to the first step within eps (an LL that arrived stands still after it)
   hit = dist < eps
-  last = np.where(hit.any(axis=1), hit.argmax(axis=1), steps - 1)
+  reached = hit.any(axis=1)
+  last = np.where(reached, hit.argmax(axis=1), steps - 1)
   rows = np.arange(len(dist))
   speed = float(np.mean((start - dist[rows, last]) / ((last + 1) * float(env.dt))))
-  reached = dist.min(axis=1) < eps
   # reach success by the goal's start distance: what the LL does with goals its speed allows
   edges = [0.0, 1.0, 2.0, 3.0, 4.0, np.inf]
   by_dist = {f"{lo:g}-{hi:g} m": dict(episodes=int(m.sum()), reached=float(reached[m].mean()) if m.any() else None)

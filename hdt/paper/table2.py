@@ -65,7 +65,9 @@ def parts(pr: Preset) -> tuple[Part, ...]:
   return tuple(out)
 
 
+ZOO_ALIGNED = ", ".join(f"{LABEL[a]} → {LABEL[b]}" for b, a in (k for k in ZOO_B_LOW if isinstance(k, tuple))
+                        if a in LABEL)
 TABLE = Table("table2", "Table 2: discriminative LL alignment", parts,
               note="Aligned LLs use A's discriminator settings (offline data for navigation, online for "
                    "manipulation, the paper's learning rates and weights); at the paper preset the zoo holds the "
-                   "PM → 3Link, 2Link → 3Link, 2Link → 4Link and 3Link → 4Link aligned LLs.")
+                   f"{ZOO_ALIGNED} aligned LLs.")
