@@ -195,6 +195,13 @@ def test_every_committed_entry_records_the_content_hash_of_each_seed():
     assert [names.recorded_hash(info, s) for s in seeds] == [ckpt.content_hash(names.ZOO_DIR / name, s) for s in seeds], name
 
 
+def test_every_committed_entry_lists_the_seeds_it_holds():
+  from hdt.transfer import checkpoint as ckpt
+  for name in zoo.entry_names():
+    info = json.loads((names.ZOO_DIR / name / "zoo.json").read_text())
+    assert info["seeds"] == ckpt.list_seeds(names.ZOO_DIR / name) == info["evaluation"]["seeds"], name
+
+
 def test_zoo_table_lists_every_entry_with_the_parameters_its_numbers_are_of():
   rows = [r.split(" | ") for r in zoo.table().splitlines()[2:]]
   assert [r[0] for r in rows] == zoo.entry_names()

@@ -17,7 +17,7 @@ ZOO_A_LOW = {"point": "point/low", "arm_point": "arm_point/low", "arm2": "arm2/l
 ZOO_A_HIGH = {("point", "waypoint"): "point/waypoint", ("point", "maze"): "point/maze",
               ("arm_point", "push1"): "arm_point/push1_500k", ("arm_point", "push2"): "arm_point/push2",
               ("arm2", "push1"): "arm2/push1_500k", ("arm2", "push2"): "arm2/push2",
-              ("arm3", "push1"): "arm3/push1_500k", ("arm3", "insert"): "arm3/insert"}
+              ("arm3", "push1"): "arm3/push1_500k", ("arm3", "push2"): "arm3/push2", ("arm3", "insert"): "arm3/insert"}
 ZOO_B_LOW = {**LEGGED_LOW, "arm3": "arm3/low_paper",
              "arm4": "arm4/low_paper", ("arm4", "insert"): "arm4/low_insert_1p2m",
              ("arm3", "arm_point"): "arm3/low_aligned_pm_1p2m", ("arm3", "arm2"): "arm3/low_aligned_arm2_1p2m",

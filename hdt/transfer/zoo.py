@@ -169,7 +169,7 @@ def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slim
               low=low, command=command,
               budget=dict(total=sac.get("total_env_steps"),
                           unit="HL decisions" if meta["level"] == "high" else "env steps"),
-              seeds=meta.get("seeds"), evaluation=full, check=check,
+              seeds=sorted(s["seed"] for s in slimmed), evaluation=full, check=check,
               hdt_version=__version__, exported=datetime.date.today().isoformat(),
               seed_sha256=[s["sha256"] for s in sorted(slimmed, key=lambda s: s["seed"])])
   if meta["level"] == "low":
