@@ -21,7 +21,8 @@ ZOO_A_HIGH = {("point", "waypoint"): "point/waypoint", ("point", "maze"): "point
 ZOO_B_LOW = {**LEGGED_LOW, "arm3": "arm3/low_paper",
              "arm4": "arm4/low_paper", ("arm4", "insert"): "arm4/low_insert_1p2m",
              ("arm3", "arm_point"): "arm3/low_aligned_pm_1p2m", ("arm3", "arm2"): "arm3/low_aligned_arm2_1p2m",
-             ("arm4", "arm3"): "arm4/low_aligned_arm3_1p2m", ("arm4", "arm2"): "arm4/low_aligned_arm2_1p2m"}
+             ("arm4", "arm3"): "arm4/low_aligned_arm3_1p2m", ("arm4", "arm2"): "arm4/low_aligned_arm2_1p2m",
+             (("arm4", "insert"), "arm3"): "arm4/low_insert_aligned_arm3_1p2m"}
 
 # (A, B, the paper's zero-shot, discrim) per part
 PAPER = {
@@ -49,7 +50,7 @@ def transfer(a: str, b: str, task: str, paper: tuple[str, str], terrain: str) ->
   a_low = Low(a, terrain, zoo=ZOO_A_LOW.get(_key(a, terrain)))
   a_high = High(task, a_low, zoo=ZOO_A_HIGH.get((a, task)))
   plain = Low(b, terrain, zoo=ZOO_B_LOW.get(_key(b, terrain)))
-  aligned = Low(b, terrain, imitate=a_low, zoo=ZOO_B_LOW.get((b, a)) if terrain == "plane" else None)
+  aligned = Low(b, terrain, imitate=a_low, zoo=ZOO_B_LOW.get((_key(b, terrain), a)))
   row = f"{LABEL[a]} → {LABEL[b]}"
   return (Cell(row, "zero-shot", high=a_high, low=plain, paper=paper[0]),
           Cell(row, "discrim", high=a_high, low=aligned, paper=paper[1]))
@@ -65,8 +66,8 @@ def parts(pr: Preset) -> tuple[Part, ...]:
   return tuple(out)
 
 
-ZOO_ALIGNED = ", ".join(f"{LABEL[a]} → {LABEL[b]}" for b, a in (k for k in ZOO_B_LOW if isinstance(k, tuple))
-                        if a in LABEL)
+ZOO_ALIGNED = ", ".join(f"{LABEL[a]} → {LABEL[b]}" if isinstance(b, str) else f"{LABEL[a]} → {LABEL[b[0]]} ({b[1]})"
+                        for b, a in (k for k in ZOO_B_LOW if isinstance(k, tuple)) if a in LABEL)
 TABLE = Table("table2", "Table 2: discriminative LL alignment", parts,
               note="Aligned LLs use A's discriminator settings (offline data for navigation, online for "
                    "manipulation, the paper's learning rates and weights); at the paper preset the zoo holds the "
