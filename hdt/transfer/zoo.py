@@ -164,14 +164,14 @@ def reslim(name: str) -> dict:
 
 
 def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash=None):
-  sac = meta.get("sac", {})
+  sac, slimmed = meta.get("sac", {}), sorted(slimmed, key=lambda s: s["seed"])
   info = dict(name=name, level=meta["level"], agent=meta["agent"], task=task, task_options=task_kw,
               low=low, command=command,
               budget=dict(total=sac.get("total_env_steps"),
                           unit="HL decisions" if meta["level"] == "high" else "env steps"),
-              seeds=sorted(s["seed"] for s in slimmed), evaluation=full, check=check,
+              seeds=[s["seed"] for s in slimmed], evaluation=full, check=check,
               hdt_version=__version__, exported=datetime.date.today().isoformat(),
-              seed_sha256=[s["sha256"] for s in sorted(slimmed, key=lambda s: s["seed"])])
+              seed_sha256=[s["sha256"] for s in slimmed])
   if meta["level"] == "low":
     info["slim"] = slimmed
   if low_hash is not None:
