@@ -48,8 +48,8 @@ def scripted_3link(starts: int = 4) -> dict[str, int]:
 
 if __name__ == "__main__":
   lows = sys.argv[1:]  # insert LLs to measure (zoo names or run dirs); default the PM's and 3Link's, then the scripted arm
-  for low in lows or ("zoo:arm_point/low_insert", "zoo:arm3/low_insert"):
-    for i, succ, ang, x, y in deepest("zoo:arm_point/insert", low):
+  for low in lows or ("zoo:arm_point/low_insert_1p2m", "zoo:arm3/low_insert"):
+    for i, succ, ang, x, y in deepest("zoo:arm_point/insert_1p2m", low):
       print(f"PM insert HL over {low} seed {i}: success {succ:.2f}, at the peg's deepest point "
             f"(median over episodes) angle from vertical {ang:.0f} deg, peg tip ({x:+.3f}, {y:+.3f})")
   for label, n in ({} if lows else scripted_3link()).items():
