@@ -1,6 +1,6 @@
 """Start-up: time to the first training step of an LL run, cold and warm.
 
-    python benchmarks/startup.py [--agents point arm3 ant] [--warm 2] [--out benchmarks/startup.json]
+    python benchmarks/startup.py [--agents point arm3 ant] [--cold 3] [--warm 2] [--out benchmarks/startup.json]
 
 Each measurement is a fresh process that trains ``hdt.transfer.pipeline.low_stage(agent, cfg)`` with
 the persistent compile cache on (as the CLI does, :func:`hdt.cache.enable_compile_cache`), cfg =
@@ -53,7 +53,8 @@ def child(agent: str) -> dict:
 def main() -> None:
   ap = argparse.ArgumentParser()
   ap.add_argument("--agents", nargs="+", default=["point", "arm3", "ant"])
-  ap.add_argument("--warm", type=int, default=2, help="warm runs after the cold one")
+  ap.add_argument("--cold", type=int, default=3, help="cold runs, each from an empty cache (median reported)")
+  ap.add_argument("--warm", type=int, default=2, help="warm runs after the last cold one")
   ap.add_argument("--out", default=os.path.join(HERE, "startup.json"))
   ap.add_argument("--no-results", action="store_true", help="do not update benchmarks/results.json")
   ap.add_argument("--child")
@@ -65,18 +66,19 @@ def main() -> None:
   rows = []
   load_start = os.getloadavg()
   for agent in args.agents:
-    with tempfile.TemporaryDirectory() as tmp:
-      for lib in glob.glob(str(cache_dir() / "native_ffi-*.so")):
-        shutil.copy(lib, tmp)
-      env = dict(os.environ, HDT_CACHE_DIR=tmp, HDT_AOT_CACHE="1")  # the opt-in loaded programs (hdt.cache.compiled)
-      env.pop("JAX_COMPILATION_CACHE_DIR", None)
-      for i in range(1 + args.warm):
-        out = subprocess.run([sys.executable, __file__, "--child", agent], env=env, capture_output=True,
-                             text=True, check=True)
-        row = json.loads(out.stdout.strip().splitlines()[-1]) | dict(kind="warm" if i else "cold",
-                                                                     load=os.getloadavg()[0])
-        rows.append(row)
-        print(json.dumps(row), flush=True)
+    for c in range(args.cold):  # each cold run in a fresh cache directory; the warm runs reuse the last
+      with tempfile.TemporaryDirectory() as tmp:
+        for lib in glob.glob(str(cache_dir() / "native_ffi-*.so")):
+          shutil.copy(lib, tmp)
+        env = dict(os.environ, HDT_CACHE_DIR=tmp, HDT_AOT_CACHE="1")  # the opt-in loaded programs (hdt.cache.compiled)
+        env.pop("JAX_COMPILATION_CACHE_DIR", None)
+        for i in range(1 + (args.warm if c == args.cold - 1 else 0)):
+          out = subprocess.run([sys.executable, __file__, "--child", agent], env=env, capture_output=True,
+                               text=True, check=True)
+          row = json.loads(out.stdout.strip().splitlines()[-1]) | dict(kind="warm" if i else "cold",
+                                                                       load=os.getloadavg()[0])
+          rows.append(row)
+          print(json.dumps(row), flush=True)
   med = lambda xs: sorted(xs)[len(xs) // 2]
   summary = {a: {k: med([r["startup_s"] for r in rows if r["agent"] == a and r["kind"] == k])
                  for k in ("cold", "warm") if any(r["agent"] == a and r["kind"] == k for r in rows)}
@@ -90,7 +92,7 @@ def main() -> None:
     from results import update
     measured = {f"{k}_startup_s_arm3_ll": v for k, v in summary["arm3"].items()}  # --warm 0 keeps the warm key
     update(measured,
-           f"benchmarks/startup.py --agents {' '.join(args.agents)} --warm {args.warm}: arm3 LL, 8 envs x 8 "
+           f"benchmarks/startup.py --agents {' '.join(args.agents)} --cold {args.cold} --warm {args.warm}: arm3 LL, 8 envs x 8 "
            f"updates x 50 steps per chunk, time before the first training step (median)")
 
 

@@ -72,6 +72,12 @@ class Trainer(NamedTuple):
   networks: nets.SACNetworks
   config: SACConfig
   sweepable: tuple[str, ...] = SWEEPABLE  # what run(hyper=...) may vary: SWEEPABLE + the plug-ins' hyper
+  native_physics: bool = False  # the physics is a custom call (not XLA ops): see RUN_ONCE
+
+
+def physics_backend(env) -> str | None:
+  """The physics backend ("native", "mjx") of ``env`` or of the env it wraps (an HL env); None if unknown."""
+  return getattr(env, "backend", None) or getattr(getattr(env, "env", None), "backend", None)
 
 
 def plugin_key(key: jax.Array, index: int) -> jax.Array:
@@ -390,7 +396,8 @@ def make_train(
     )
     return ts, {"train": chunk_metrics, "eval": evaluate(ts.agent.policy_params, k_eval, ts.agent.obs_norm)}
 
-  return Trainer(init, run_chunk, evaluate, train, networks, config, sweepable)
+  return Trainer(init, run_chunk, evaluate, train, networks, config, sweepable,
+                 native_physics=physics_backend(env) == "native")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -477,10 +484,13 @@ class VmappedFns(NamedTuple):
   eval_keys: Callable  # (seed keys[S], int32 index) -> keys[S] of that evaluation (eval_key)
 
 
-# XLA options of the programs a run calls once (init) or that are tiny (eval_keys): without the
-# backend's optimisation passes they compile in about half the time and run as fast, which shortens
-# every cold start (BENCHMARKS.md, start-up). The chunk and the evaluation keep the default.
+# XLA's backend optimisation level per program, for a shorter cold start (BENCHMARKS.md, start-up).
+# Init and the evaluation keys run once, and over native physics the evaluation is bound by the
+# custom call: without the backend's passes they compile in about half the time and run as fast
+# (not MJX's, whose physics is XLA ops). The chunk at level 1 compiles faster than at the default and
+# runs as fast on both backends.
 RUN_ONCE = {"xla_backend_optimization_level": 0}
+CHUNK = {"xla_backend_optimization_level": 1}
 
 
 @functools.lru_cache(maxsize=16)
@@ -496,8 +506,8 @@ def vmapped(trainer: Trainer, num_seeds: int = 1, hyper: bool = False) -> Vmappe
   chunk = (lambda ts, h: trainer.run_chunk(ts, h)) if hyper else (lambda ts: trainer.run_chunk(ts))
   return VmappedFns(
       init=jax.jit(over(trainer.init, 2), compiler_options=RUN_ONCE),
-      run_chunk=jax.jit(over(chunk, 2 if hyper else 1), donate_argnums=0),
-      evaluate=jax.jit(over(trainer.evaluate, 3)),
+      run_chunk=jax.jit(over(chunk, 2 if hyper else 1), donate_argnums=0, compiler_options=CHUNK),
+      evaluate=jax.jit(over(trainer.evaluate, 3), compiler_options=RUN_ONCE if trainer.native_physics else None),
       eval_keys=jax.jit(jax.vmap(eval_key, in_axes=(0, None)), compiler_options=RUN_ONCE),
   )
 
@@ -529,17 +539,17 @@ def _ahead_of_time(fns: VmappedFns, key: str, keys: jax.Array, hyper: dict | Non
   abstract arguments are only traced when nothing was saved yet."""
   keys_a = jax.ShapeDtypeStruct(keys.shape, keys.dtype)
   index_a = jax.ShapeDtypeStruct(keys.shape[:1], jnp.int32)
-  ts_a = lambda: jax.eval_shape(fns.init, keys_a, index_a)
+  ts_a = functools.cache(lambda: jax.eval_shape(fns.init, keys_a, index_a))
   hyper_a = () if hyper is None else ({k: jax.ShapeDtypeStruct(keys.shape[:1], jnp.float32) for k in hyper},)
-  chunk = cache.compiled(fns.run_chunk, key + "|run_chunk", lambda: (ts_a(), *hyper_a))
-  return VmappedFns(
-      init=cache.compiled(fns.init, key + "|init", lambda: (keys_a, index_a)),
-      run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
-      evaluate=cache.compiled(fns.evaluate, key + "|evaluate",
-                              lambda: (ts_a().agent.policy_params, keys_a, ts_a().agent.obs_norm)),
-      eval_keys=cache.compiled(fns.eval_keys, key + "|eval_keys",
-                               lambda: (keys_a, jax.ShapeDtypeStruct((), jnp.int32))),
-  )
+  # the chunk first: the largest compile, which the others' lowering and compiling then overlap
+  chunk, init, evaluate, eval_keys = cache.compiled_all([
+      (fns.run_chunk, key + "|run_chunk", lambda: (ts_a(), *hyper_a)),
+      (fns.init, key + "|init", lambda: (keys_a, index_a)),
+      (fns.evaluate, key + "|evaluate", lambda: (ts_a().agent.policy_params, keys_a, ts_a().agent.obs_norm)),
+      (fns.eval_keys, key + "|eval_keys", lambda: (keys_a, jax.ShapeDtypeStruct((), jnp.int32))),
+  ])
+  return VmappedFns(init=init, run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
+                    evaluate=evaluate, eval_keys=eval_keys)
 
 
 def run(

@@ -175,7 +175,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
   save_steps = _save_steps(config, options.save_every)
   # Compiled programs are saved and reloaded (hdt.cache.compiled) when the key below names all they
   # depend on: not with plug-ins (functions no key can name).
-  backend = getattr(env, "backend", None) or getattr(getattr(env, "env", None), "backend", None)
+  backend = sac_train.physics_backend(env)
   cache_key = None if stage.plugins or not backend else json.dumps(
       dict(env=type(env).__name__, backend=backend, meta=meta, config=dataclasses.asdict(config)),
       sort_keys=True, default=str)
