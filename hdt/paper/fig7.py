@@ -14,7 +14,8 @@ A_HIGH = {"arm_point": High("push1", Low("arm_point", zoo="arm_point/low"), zoo=
           "arm3": High("push1", Low("arm3", zoo="arm3/low_paper"), zoo="arm3/push1_500k")}
 ZOO_LOW = {"arm2": "arm2/low_paper", "arm3": "arm3/low_paper", "arm4": "arm4/low_paper"}
 # name: (A, B, title, the zero-shot level of Table 1 / Appendix E, zoo entries of its methods)
-PANELS = {"pm_2link": ("arm_point", "arm2", "2Link from PM (success)", ".36 ± .14", {}),
+PANELS = {"pm_2link": ("arm_point", "arm2", "2Link from PM (success)", ".36 ± .14",
+                       {"finetune_kl": "arm2/push1_ft_kl_from_pm"}),
           "pm_3link": ("arm_point", "arm3", "3Link from PM (success)", ".17 ± .08",
                        {"finetune_kl": "arm3/push1_ft_kl_from_pm"}),
           "pm_4link": ("arm_point", "arm4", "4Link from PM (success)", ".24 ± .11", {}),
