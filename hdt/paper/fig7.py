@@ -19,7 +19,8 @@ PANELS = {"pm_2link": ("arm_point", "arm2", "2Link from PM (success)", ".36 ± .
           "pm_3link": ("arm_point", "arm3", "3Link from PM (success)", ".17 ± .08",
                        {"finetune_kl": "arm3/push1_ft_kl_from_pm"}),
           "pm_4link": ("arm_point", "arm4", "4Link from PM (success)", ".24 ± .11", {}),
-          "3link_4link": ("arm3", "arm4", "4Link from 3Link (success)", ".10 ± .05", {})}
+          "3link_4link": ("arm3", "arm4", "4Link from 3Link (success)", ".10 ± .05",
+                          {"finetune_kl": "arm4/push1_ft_kl_from_arm3"})}
 WORDS = {"finetune_kl": "fastest: at least 2× plain finetuning", "finetune": "unstable across seeds on the 2Link",
          "scratch": "slower than finetuning", "full": "eventually successful, cut off in the figure"}
 
