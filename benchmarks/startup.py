@@ -9,7 +9,7 @@ step and 50 training steps per chunk, 3 chunks, 1 seed.
 
 * **cold**: a fresh cache directory (only the native physics library is copied in, so its C++ build
   is not counted): everything is traced, lowered and compiled;
-* **warm**: the same cache directory again: the compiled programs are loaded (hdt.cache.compiled).
+* **warm**: the same cache directory again: the compiled programs are loaded (hdt.cache.compiled_all).
 
 ``startup_s`` = time from calling ``train_low`` (env built, programs obtained, params initialised,
 the evaluation before training) to the end of the first chunk, minus one steady chunk (the median
@@ -70,7 +70,7 @@ def main() -> None:
       with tempfile.TemporaryDirectory() as tmp:
         for lib in glob.glob(str(cache_dir() / "native_ffi-*.so")):
           shutil.copy(lib, tmp)
-        env = dict(os.environ, HDT_CACHE_DIR=tmp, HDT_AOT_CACHE="1")  # the opt-in loaded programs (hdt.cache.compiled)
+        env = dict(os.environ, HDT_CACHE_DIR=tmp, HDT_AOT_CACHE="1")  # the opt-in loaded programs (hdt.cache.compiled_all)
         env.pop("JAX_COMPILATION_CACHE_DIR", None)
         for i in range(1 + (args.warm if c == args.cold - 1 else 0)):
           out = subprocess.run([sys.executable, __file__, "--child", agent], env=env, capture_output=True,

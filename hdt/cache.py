@@ -47,11 +47,6 @@ def code_version() -> str:
   return h.hexdigest()
 
 
-def compiled(jitted, key: str, abstract_args: Callable[[], tuple]):
-  """``jitted`` (a ``jax.jit`` function) compiled ahead of time: :func:`compiled_all` of one."""
-  return compiled_all([(jitted, key, abstract_args)])[0]
-
-
 def compiled_all(programs: Sequence[tuple[Callable, str, Callable[[], tuple]]]) -> list:
   """Each ``(jitted, key, abstract_args)`` (a ``jax.jit`` function) compiled ahead of time, loaded
   from ``cache_dir()/aot`` when a program was saved under ``key`` (which must name everything the

@@ -133,7 +133,7 @@ def make_sac_networks(
   dummy_act = jax.ShapeDtypeStruct((1, action_size), jnp.float32)
   key_shape = jax.ShapeDtypeStruct((2,), jnp.uint32)
 
-  # traced on first use only: a run whose programs were loaded (hdt.cache.compiled) never calls init
+  # traced on first use only: a run whose programs were loaded (hdt.cache.compiled_all) never calls init
   @functools.cache
   def policy_shapes():
     return jax.eval_shape(policy.init, key_shape, dummy_obs)

@@ -459,7 +459,7 @@ def seed_keys(seeds: Sequence[int]) -> np.ndarray:
 
   For the default threefry keys and seeds in [0, 2**31) the key is ``[0, seed]`` (jax's
   ``threefry_seed``), built here without the small programs eager ``PRNGKey`` compiles: a warm
-  start (:func:`hdt.cache.compiled`) then compiles nothing."""
+  start (:func:`hdt.cache.compiled_all`) then compiles nothing."""
   seeds = [int(s) for s in seeds]
   if jax.config.jax_default_prng_impl == "threefry2x32" and all(0 <= s < 2**31 for s in seeds):
     return np.array([[0, s] for s in seeds], np.uint32).reshape(len(seeds), 2)
@@ -535,7 +535,7 @@ def grid_points(grid: dict | None, sweepable: Sequence[str] = SWEEPABLE) -> list
 
 
 def _ahead_of_time(fns: VmappedFns, key: str, keys: jax.Array, hyper: dict | None) -> VmappedFns:
-  """``fns`` as programs loaded from (or compiled into) :func:`hdt.cache.compiled` under ``key``;
+  """``fns`` as programs loaded from (or compiled into) :func:`hdt.cache.compiled_all` under ``key``;
   abstract arguments are only traced when nothing was saved yet."""
   keys_a = jax.ShapeDtypeStruct(keys.shape, keys.dtype)
   index_a = jax.ShapeDtypeStruct(keys.shape[:1], jnp.int32)
@@ -601,7 +601,7 @@ def run(
     Plug-in values replace that plug-in's defaults.
   cache_key: a string naming everything the trainer's programs depend on besides hdt's code (env and
     its options, config, plug-ins); with it, the compiled programs are saved and later runs with the
-    same key load them (:func:`hdt.cache.compiled`) instead of tracing and compiling (one device).
+    same key load them (:func:`hdt.cache.compiled_all`) instead of tracing and compiling (one device).
   networks, plugins: as :func:`make_train` (when ``trainer`` is None).
 
   After every chunk the loss terms and parameters are checked (flags computed inside the jitted

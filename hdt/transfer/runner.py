@@ -173,7 +173,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
                      f"equal?); give each point its own out")
   source = outputs[0][1]
   save_steps = _save_steps(config, options.save_every)
-  # Compiled programs are saved and reloaded (hdt.cache.compiled) when the key below names all they
+  # Compiled programs are saved and reloaded (hdt.cache.compiled_all) when the key below names all they
   # depend on: not with plug-ins (functions no key can name).
   backend = sac_train.physics_backend(env)
   cache_key = None if stage.plugins or not backend else json.dumps(
