@@ -1,6 +1,6 @@
 """hdt's legged bodies against the authors' MJCF files, number by number and in a rollout.
 
-    python benchmarks/authors_bodies.py /work/.mirror/jhejna+hierarchical_morphology_transfer/repo \
+    python benchmarks/authors_bodies.py MIRROR \
         [--agents ant ant3 ant2 quadruped] [--steps 200] [--seed 0] [--json out.json]
 
 The first argument is the authors' repository: a checkout or a bare git mirror (read with

@@ -1,6 +1,6 @@
 """hdt's trained point-mass policies, unchanged, in an independent rebuild of the authors' envs.
 
-    python benchmarks/authors_envs.py /work/.mirror/jhejna+hierarchical_morphology_transfer/repo \
+    python benchmarks/authors_envs.py MIRROR \
         [--low runs/pm_low] [--high runs/pm_waypoint] [--episodes 100] [--json benchmarks/authors_envs.json]
 
 The first argument is the authors' repository (a checkout or a bare git mirror, read with ``git show
@@ -429,7 +429,7 @@ def main(argv=None) -> int:
   xml = authors_xml(args.repo)
   m = mujoco.MjModel.from_xml_string(xml)
   torso = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "torso")
-  result = dict(authors_repo=args.repo, episodes=args.episodes,
+  result = dict(authors_repo="jhejna/hierarchical_morphology_transfer", episodes=args.episodes,
                 body=dict(mass=float(m.body_mass[torso]), integrator=mujoco.mjtIntegrator(m.opt.integrator).name,
                           timestep=float(m.opt.timestep), frame_skip=FRAME_SKIP,
                           gear=m.actuator_gear[:, 0].tolist()),

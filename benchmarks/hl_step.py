@@ -121,8 +121,9 @@ def main(argv=None) -> int:
           f"HL env {1e3 * r['env_s']:.1f} ms, LL steps {1e3 * r['ll_s']:.1f} ms -> ratio {r['ratio']:.2f}, "
           f"{r['hl_decisions_per_s']:.0f} decisions/s (load {r['load']})", flush=True)
     rows.append(r)
-  with open(args.out, "w") as f:
-    json.dump(dict(args=vars(args), rows=rows), f, indent=1)
+  with open(args.out + ".tmp", "w") as f:  # no machine path in the record
+    json.dump(dict(args=dict(vars(args), out=os.path.relpath(args.out)), rows=rows), f, indent=1)
+  os.replace(args.out + ".tmp", args.out)
   if not args.no_results:
     by = {r["task"]: r for r in rows}
     vals = {}

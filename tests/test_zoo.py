@@ -159,6 +159,51 @@ def test_an_hl_over_a_zoo_ll_whose_seed_was_replaced_is_refused(zoo_copy, tmp_pa
     assert tree() == before and not (tmp_path / "ev").exists()
 
 
+def _as_exported_with_machine_paths(zoo_dir, name: str) -> dict:
+  """Makes zoo entry ``name`` look as exported while orbax wrote the exporting machine's path into its
+  commit markers, with the hashes such an export recorded; returns {seed or None: hash}."""
+  from hdt.transfer import checkpoint as ckpt
+  entry = zoo_dir / name
+  for m in entry.rglob(names.ORBAX_MARKER):
+    m.write_text(f"Checkpoint commit was successful to /home/someone/hdt/zoo/.{name}.tmp/{m.parent.name}")
+  seeds = ckpt.list_seeds(entry)
+  hashes = {s: ckpt.content_hash(entry, s) for s in seeds}
+  info = json.loads((entry / "zoo.json").read_text())
+  for s in info.get("slim") or []:
+    s["sha256"] = hashes[s["seed"]]
+  info["seed_sha256"] = [hashes[s] for s in seeds]
+  (entry / "zoo.json").write_text(json.dumps(info))
+  ckpt.record_seed_hashes(entry)
+  return {**hashes, None: ckpt.content_hash(entry)}
+
+
+def test_checkpoints_hold_no_machine_path_and_scrubbing_an_old_entry_keeps_what_depends_on_it(zoo_copy, tmp_path):
+  from hdt.transfer import checkpoint as ckpt
+  # a checkpoint written today names no directory in its commit marker
+  ckpt.save(tmp_path / "run", 0, {"w": np.ones(3, np.float32)}, dict(level="low"))
+  markers = list((tmp_path / "run").rglob(names.ORBAX_MARKER))
+  assert markers and all(m.read_text() == names.MARKER_TEXT for m in markers)
+  # an entry exported with paths in its markers, an HL over it that recorded its hash, and a run
+  # that recorded the HL's whole hash (a finetuning run does)
+  low = _as_exported_with_machine_paths(zoo_copy, "point/low")
+  high = _as_exported_with_machine_paths(zoo_copy, "point/waypoint")
+  info_path = zoo_copy / "point" / "waypoint" / "zoo.json"
+  info_path.write_text(json.dumps(dict(json.loads(info_path.read_text()), low_sha256=low[0])))
+  ev.compose("zoo:point/waypoint", "zoo:point/low")
+  for name in ("point/low", "point/waypoint"):
+    zoo.scrub_markers(name)
+    assert all(m.read_text() == names.MARKER_TEXT for m in (zoo_copy / name).rglob(names.ORBAX_MARKER))
+  assert ckpt.content_hash("zoo:point/low", 0) != low[0]
+  # the files changed, their parameters did not: the HL still composes, its old hashes still name it
+  ev.compose("zoo:point/waypoint", "zoo:point/low")
+  assert low[0] in names.hash_aliases("zoo:point/low", 0) and high[None] in names.hash_aliases("zoo:point/waypoint", None)
+  assert not zoo.within_noise(*zoo.recheck("point/waypoint"))
+  # and only while they are unchanged: another edit drops the aliases
+  m = next((zoo_copy / "point/waypoint").rglob(names.ORBAX_MARKER))
+  m.write_text("edited")
+  assert names.hash_aliases("zoo:point/waypoint", None) == {ckpt.content_hash("zoo:point/waypoint")}
+
+
 def test_a_failed_export_leaves_nothing_in_the_zoo(zoo_copy, monkeypatch):
   def broken(*a, **k):
     raise RuntimeError("evaluation failed")

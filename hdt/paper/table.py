@@ -158,7 +158,7 @@ def _still_valid(entry: dict | None) -> bool:
   if not entry or entry.get("status") != "done":
     return False
   try:
-    return all(names.content_hash(r["path"]) == r["sha256"] for r in entry["key"]["runs"].values())
+    return all(r["sha256"] in names.hash_aliases(r["path"], None) for r in entry["key"]["runs"].values())
   except (ValueError, OSError, KeyError, TypeError):
     return False
 

@@ -83,13 +83,14 @@ def _checkpointer():
   return ocp.Checkpointer(ocp.PyTreeCheckpointHandler(multiprocessing_options=alone), multiprocessing_options=alone)
 
 
-def _orbax_save(path: Path, tree) -> None:
-  """``tree`` saved by orbax at ``path``; a file-system failure (a full disk, a read-only mount) is
-  raised as the OSError it is, naming ``path``."""
+def orbax_save(path: Path, tree) -> None:
+  """``tree`` saved by orbax at ``path``, its commit marker path-free (:func:`names.scrub_marker`); a
+  file-system failure (a full disk, a read-only mount) is raised as the OSError it is, naming ``path``."""
   before = set(threading.enumerate())
   try:
     with _quiet_orbax():
       _checkpointer().save(path, tree)
+    names.scrub_marker(path)
   except Exception as e:  # orbax wraps OS errors in ValueError and others
     for t in set(threading.enumerate()) - before:  # its other writers: done before the caller cleans up
       t.join(timeout=30)
@@ -119,9 +120,9 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
     meta["best"] = best[1]
 
   def write(tmp: Path):
-    _orbax_save(tmp / "params", params)
+    orbax_save(tmp / "params", params)
     if best is not None:
-      _orbax_save(tmp / "best" / "params", jax.tree.map(np.asarray, best[0]))
+      orbax_save(tmp / "best" / "params", jax.tree.map(np.asarray, best[0]))
     write_json_atomic(tmp / "meta.json", meta)
 
   return _atomic_dir(seed_dir(run_dir, seed_index), write)
@@ -333,7 +334,7 @@ def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], i
     info["best_leaves"] = _leaf_specs(best_leaves)
 
   def write(tmp: Path):
-    _orbax_save(tmp / "arrays", {k: v for k, v in arrays.items() if v})
+    orbax_save(tmp / "arrays", {k: v for k, v in arrays.items() if v})
     write_json_atomic(tmp / "state.json", info)
 
   return _atomic_dir(state_dir(run_dir), write)

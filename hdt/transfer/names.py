@@ -143,11 +143,29 @@ def recorded_low_hash(high) -> str | None:
   return h if isinstance(h, str) else None
 
 
-def hash_aliases(low, seed: int) -> set[str]:
-  """Content hashes that name seed ``seed`` of the LL ``low`` as it is now: its own, plus, for a slim
-  zoo entry whose files are unchanged since it was slimmed, that of the full run it was exported from
-  and of its earlier zoo copies (``hdt.transfer.zoo.reslim``)."""
+def hash_aliases(low, seed: int | None) -> set[str]:
+  """Content hashes that name seed ``seed`` of ``low`` (every seed: None) as it is now: its own, plus,
+  for a zoo entry whose files are unchanged since it was slimmed or its commit markers scrubbed, that
+  of the full run it was exported from and of its earlier zoo copies (``hdt.transfer.zoo.reslim``,
+  ``hdt.transfer.zoo.scrub_markers``)."""
   now = content_hash(low, seed)
   info = (info_of(low) or {}) if str(low).startswith(PREFIX) else {}
+  if seed is None:
+    return {now} | (set(info.get("earlier_entry_sha256") or []) if info.get("entry_sha256") == now else set())
   return {now} | {h for s in info.get("slim") or [] if s["seed"] == seed and s["sha256"] == now
                   for h in [s["source_sha256"], *s.get("earlier_sha256", [])]}
+
+
+ORBAX_MARKER = "commit_success.txt"
+MARKER_TEXT = "Checkpoint commit was successful\n"  # orbax's own text ends with the absolute save path
+
+
+def scrub_marker(path) -> bool:
+  """Rewrites the commit marker orbax leaves in the checkpoint ``path`` without the path it was saved
+  to, so that a checkpoint's bytes (and content hash) do not depend on the machine or directory that
+  wrote it; True if it changed."""
+  f = Path(path) / ORBAX_MARKER
+  if not f.is_file() or f.read_text() == MARKER_TEXT:
+    return False
+  atomic.write_text(f, MARKER_TEXT)
+  return True

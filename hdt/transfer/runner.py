@@ -419,15 +419,17 @@ def _with_legacy_fields(saved: dict, legacy_meta: dict[str, dict], requested_con
 
 
 def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
-  """``saved`` with the LL hashes of ``info`` where an LL it recorded (the HL's ``low``, the aligned
-  LL's imitated ``aligned_to``) is now a slim zoo copy of the same parameters (:func:`hdt.transfer.names.hash_aliases`):
+  """``saved`` with the hashes of ``info`` where a checkpoint it recorded (the HL's ``low``, the aligned
+  LL's imitated ``aligned_to``, a finetuned HL's A ``finetuned_from``, all of whose seeds it hashes) is
+  now a slim or scrubbed zoo copy of the same parameters (:func:`hdt.transfer.names.hash_aliases`):
   slimming an entry is not retraining it."""
   meta = dict(saved.get("meta") or {})
-  for key in ("low", "aligned_to"):
+  for key in ("low", "aligned_to", "finetuned_from"):
     old, now = meta.get(key), (info.get("meta") or {}).get(key)
+    seed = None if key == "finetuned_from" else int((now or {}).get("seed_index", 0))
     if (isinstance(old, dict) and isinstance(now, dict) and old.get("sha256") != now.get("sha256")
         and old.get("path") == now.get("path") and isinstance(now.get("path"), str)
-        and old.get("sha256") in names.hash_aliases(now["path"], int(now.get("seed_index", 0)))):
+        and old.get("sha256") in names.hash_aliases(now["path"], seed)):
       meta[key] = dict(old, sha256=now["sha256"])
   return dict(saved, meta=meta)
 

@@ -135,11 +135,40 @@ def _slim(entry: Path, level: str) -> list[dict]:
         if set(params) <= set(POLICY_KEYS):
           continue
         new = path.with_name(path.name + ".slim")
-        ocp.PyTreeCheckpointer().save(new.resolve(), {k: v for k, v in params.items() if k in POLICY_KEYS})
+        ckpt.orbax_save(new.resolve(), {k: v for k, v in params.items() if k in POLICY_KEYS})
         shutil.rmtree(path)
         new.rename(path)
+    _scrub_markers(d)
     out.append({"seed": seed, "source_sha256": before, "sha256": ckpt.content_hash(entry, seed)})
   return out
+
+
+def _scrub_markers(d: Path) -> bool:
+  return any([names.scrub_marker(m.parent) for m in sorted(d.rglob(names.ORBAX_MARKER))])
+
+
+def scrub_markers(name: str) -> dict:
+  """Rewrites, in place, the commit markers of an entry exported while orbax wrote the exporting
+  machine's path into them (:func:`hdt.transfer.names.scrub_marker`), keeping the hashes it had as
+  aliases, so that runs and HLs recorded over it still compose and resume. Returns the zoo.json."""
+  entry, path = names.ZOO_DIR / check_name(name), names.ZOO_DIR / name / "zoo.json"
+  info = json.loads(path.read_text())
+  seeds = ckpt.list_seeds(entry)
+  old_entry, old = ckpt.content_hash(entry), {s: ckpt.content_hash(entry, s) for s in seeds}
+  if not _scrub_markers(entry):
+    return info
+  new = {s: ckpt.content_hash(entry, s) for s in seeds}
+  if info.get("slim"):
+    for s in info["slim"]:
+      s["earlier_sha256"] = sorted(({*s.get("earlier_sha256", []), old[s["seed"]]}
+                                    - {s["source_sha256"], new[s["seed"]]}))
+      s["sha256"] = new[s["seed"]]
+  info["seed_sha256"] = [new[s] for s in seeds]
+  info["entry_sha256"] = ckpt.content_hash(entry)
+  info["earlier_entry_sha256"] = sorted({*info.get("earlier_entry_sha256", []), old_entry} - {info["entry_sha256"]})
+  ckpt.record_seed_hashes(entry)
+  atomic.write_text(path, json.dumps(info, indent=1))  # in its own order: a readable diff
+  return info
 
 
 def reslim(name: str) -> dict:
