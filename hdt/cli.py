@@ -236,8 +236,9 @@ def build_parser() -> argparse.ArgumentParser:
   ft.add_argument("--mode", choices=("forward", "reverse"), default="forward", help="KL direction")
   ft.add_argument("--mean-only", action="store_true", help="tie only the means: the squared distance of the pre-tanh means (the authors' kl_type=mean)")
   ft.add_argument("--lr", type=float, default=None,
-                  help="all learning rates (default: the task's, as the paper: 0.01 for Waypoint and "
-                       "manipulation, 0.001 for Maze and Steps, unless --actor-lr/--critic-lr/--alpha-lr set them)")
+                  help="all learning rates (default, as the paper: the task's, 0.01 for Waypoint and "
+                       "manipulation, 0.001 for Maze and Steps; with --kl-weight 0, A's own; unless "
+                       "--actor-lr/--critic-lr/--alpha-lr set them)")
   ft.add_argument("--low-seed", type=int, default=0)
   ft.add_argument("--reference-params", choices=("best", "final"), default="best",
                   help="A's parameters the KL ties to: its best periodic evaluation's (as the authors; "
@@ -450,12 +451,6 @@ def cmd_align(args) -> int:
   return _finish(res, args)
 
 
-def _a_sac(a) -> dict:
-  """A's network and SAC kind (``a``: A's HL card): a finetune starts from A's whole SAC."""
-  return dict(hidden_sizes=a.hidden_sizes, value_net=bool(a.sac.get("value_net", False)),
-              critic_layer_norm=bool(a.sac.get("critic_layer_norm", False)))
-
-
 def _finetune_spec(args):
   """The FinetuneSpec of `hdt finetune` / `hdt sweep finetune` (checked field by field when made)."""
   from hdt.transfer.finetune import FinetuneSpec
@@ -468,14 +463,15 @@ def _finetune_spec(args):
 def cmd_finetune(args) -> int:
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer.card import LowRef, PolicyCard
-  from hdt.transfer.finetune import finetune_high
+  from hdt.transfer.finetune import finetune_high, start_fields
   from hdt.transfer.pipeline import check_env_overrides, load_low
   _check_agent_task(task=args.task)
   spec = _finetune_spec(args)
   check_env_overrides(_key_values(args.set, "--set"), task=args.task)
   a = PolicyCard.from_json(ckpt.load_meta(args.high), args.high)  # every field of its type, before it is used
   b = load_low(args.low, args.low_seed)[1]
-  cfg = sac_config(args, "finetune", task=args.task, **_a_sac(a))  # the task's finetuning lr unless set
+  # A's network and SAC kind; the task's finetuning lr (plain finetuning: A's own) unless set
+  cfg = sac_config(args, "finetune", task=args.task, **start_fields(a, args.task, spec.kl_weight))
   out = _out_dir(args, f"finetune-{args.task}-{_label(a.agent)}-to-{_label(b.agent)}-kl{spec.kl_weight:g}",
                  reads={"high": args.high, "low": args.low})
   res = finetune_high(args.high, LowRef(args.low, args.low_seed, args.low_params), args.task, cfg, spec=spec,
@@ -666,12 +662,14 @@ def _sweep(args, lv, grid: dict, root: Path, seeds: int, overrides: dict, disc) 
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import sweep
   from hdt.transfer.card import PolicyCard
+  from hdt.transfer.finetune import start_fields
   from hdt.transfer.runner import RunOptions
   level = lv.sac_level or lv.name  # of the SAC config
   extra = {}
   if "high" in lv.needs:  # finetuning, as `hdt finetune`: A's SAC, and the preset's task options
     a = PolicyCard.from_json(ckpt.load_meta(args.high), args.high)
-    extra = {k: v for k, v in _a_sac(a).items() if k not in grid}
+    # one learning rate for every point (the task's unless gridded), so that kl_weight=0 differs only in the KL
+    extra = {k: v for k, v in start_fields(a, args.task).items() if k not in grid}
     overrides = configs.task_options(args.preset, args.task) | overrides
   names, runs = [], []
   for values in itertools.product(*grid.values()):

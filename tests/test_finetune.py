@@ -320,3 +320,33 @@ def _without_best(run, dst):
   ckpt.save(dst, 0, final, meta)
   ckpt.record_seed_hashes(dst)
   return dst
+
+
+@pytest.mark.parametrize("extra, want", [([], "task"), (["--kl-weight", "0"], "a"),
+                                         (["--kl-weight", "0", "--actor-lr", "0.002"], 0.002)])
+def test_plain_finetuning_keeps_a_s_learning_rate_and_kl_finetuning_takes_the_task_s(extra, want, tmp_path,
+                                                                                      monkeypatch):
+  """The paper's plain finetuning runs at the HL's original learning rate (Appendix D), as the authors'
+  scripts/finetune_high_level.py; KL finetuning at the task's (0.01 for BlockPush)."""
+  from hdt import cli
+  from hdt.transfer import configs
+  from hdt.transfer import finetune as ft
+  from hdt.transfer.card import PolicyCard
+  seen = {}
+
+  def capture(high, low, task, config, **kw):
+    seen["config"] = config
+    raise SystemExit(0)
+
+  monkeypatch.setattr(ft, "finetune_high", capture)
+  with pytest.raises(SystemExit):
+    cli.main(["finetune", "--high", "zoo:arm_point/push1", "--low", "zoo:arm3/low_paper", "--task", "push1",
+              "--out", str(tmp_path / "ft"), *extra])
+  a = PolicyCard.from_json(ckpt.load_meta("zoo:arm_point/push1"), "zoo:arm_point/push1").sac
+  cfg = seen["config"]
+  if want == "task":
+    assert cfg.actor_lr == cfg.critic_lr == cfg.alpha_lr == configs.finetune_params("push1")["lr"] == 0.01
+  elif want == "a":
+    assert (cfg.actor_lr, cfg.critic_lr, cfg.alpha_lr) == (a["actor_lr"], a["critic_lr"], a["alpha_lr"]) == (3e-4,) * 3
+  else:
+    assert cfg.actor_lr == want and cfg.critic_lr == a["critic_lr"]

@@ -13,6 +13,7 @@ from hdt.paper.runs import PRESETS, Finetune, Full, High, Low, Runs
 from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import names
 from hdt.transfer.card import PolicyCard
+from hdt.transfer.finetune import start_fields
 
 TABLES = {n: paper.load(n) for n in paper.NAMES}
 
@@ -57,7 +58,8 @@ def _cli_config(argv):
   args = parser().parse_args(argv)
   sets = cli._key_values(args.set, "--set")
   if args.cmd == "finetune":  # A's network and SAC kind, once A exists
-    start = cli._a_sac(PolicyCard.from_json(ckpt.load_meta(args.high), args.high)) if names.list_seeds(args.high) else {}
+    start = (start_fields(PolicyCard.from_json(ckpt.load_meta(args.high), args.high), args.task, args.kl_weight)
+             if names.list_seeds(args.high) else {})
     return cli.sac_config(args, "finetune", task=args.task, **start), sets, args
   level = args.level if args.cmd == "train" else "low"
   return cli.sac_config(args, level, getattr(args, "agent", None), getattr(args, "task", None)), sets, args

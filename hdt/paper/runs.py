@@ -16,8 +16,9 @@ from typing import Any, Union
 from hdt.agents.sac import SACConfig
 from hdt.envs.robot import agent_spec
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer import configs, names, runner
+from hdt.transfer import configs, finetune, names, runner
 from hdt.transfer.align import align_stage
+from hdt.transfer.card import PolicyCard
 from hdt.transfer.finetune import FinetuneSpec, finetune_stage
 from hdt.transfer.pipeline import full_stage, high_stage, low_stage
 
@@ -193,15 +194,14 @@ class High(_Recipe):
     return ["hdt", "train", "high", "--task", self.task, "--low", paths["low"], *_sets(self.options)]
 
 
-def start_fields(high) -> dict:
-  """A's network and SAC kind, which finetuning starts from (as ``hdt finetune``); {} before A exists."""
+def start_fields(high, task: str, kl_weight: float | None) -> dict:
+  """What finetuning takes from A's HL (as ``hdt finetune``, :func:`hdt.transfer.finetune.start_fields`);
+  {} before A exists."""
   try:
     meta = ckpt.load_meta(high)
   except ckpt.CheckpointError:
     return {}
-  sac = meta.get("sac", {})
-  return dict(hidden_sizes=tuple(meta["hidden_sizes"]), value_net=bool(sac.get("value_net", False)),
-              critic_layer_norm=bool(sac.get("critic_layer_norm", False)))
+  return finetune.start_fields(PolicyCard.from_json(meta, high), task, kl_weight)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -233,11 +233,15 @@ class Finetune(_Recipe):
     return agent_spec(self.low.agent).k
 
   def configs(self, preset, pr, paths):
-    return _config("finetune", preset, pr, pr.ft, task=self.task, **start_fields(paths["high"]))
+    return _config("finetune", preset, pr, pr.ft, task=self.task,
+                   **start_fields(paths["high"], self.task, self.spec.kl_weight))
+
+  @property
+  def spec(self) -> FinetuneSpec:
+    return FinetuneSpec(kl_weight=None if self.kl else 0.0)  # None: the task's (the paper's), as the CLI
 
   def stage(self, cfg, paths, preset):
-    spec = FinetuneSpec(kl_weight=None if self.kl else 0.0)  # None: the task's (the paper's), as the CLI
-    return finetune_stage(paths["high"], paths["low"], self.task, cfg, spec,
+    return finetune_stage(paths["high"], paths["low"], self.task, cfg, self.spec,
                           **(configs.task_options(preset, self.task) | dict(self.options)))
 
   def command(self, paths, preset) -> list[str]:

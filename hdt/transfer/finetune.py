@@ -6,6 +6,10 @@ env of ``task`` over B's frozen LL, starting the policy from A's HL and adding `
 ``kl_weight`` (the paper's beta) to ``1e-5 kl_weight`` (KLSAC's floor) over the first ``anneal_frac``
 of training. ``kl_weight=0`` is plain finetuning.
 
+Learning rates (:func:`start_fields`): KL finetuning uses the task's (paper Appendix D: 0.01 Waypoint and
+manipulation, 0.001 Maze); plain finetuning keeps A's own, as the paper compares ("the original learning
+rate of the policy tended to perform best") and the authors' ``scripts/finetune_high_level.py`` does.
+
 The other baselines need no new code: "HL from scratch on B's LL" is
 :func:`hdt.transfer.pipeline.train_high`, "Full" is :func:`hdt.transfer.pipeline.train_full`.
 
@@ -134,6 +138,22 @@ def check_anneal_frac(anneal_frac) -> None:
                      f"the KL weight decays to 0 (e.g. 0.5)")
 
 
+PLAIN_LR_FIELDS = ("actor_lr", "critic_lr", "alpha_lr")
+
+
+def start_fields(card_a: PolicyCard, task: str, kl_weight: float | None = None) -> dict:
+  """SACConfig fields finetuning takes from A's HL (``card_a``): its network and SAC kind, since every
+  seed starts from A's whole SAC; and, for plain finetuning (``kl_weight`` 0), A's own learning rates
+  (the module docstring). None: the task's KL weight, which is never 0."""
+  sac = card_a.sac
+  out = dict(hidden_sizes=tuple(card_a.hidden_sizes), value_net=bool(sac.get("value_net", False)),
+             critic_layer_norm=bool(sac.get("critic_layer_norm", False)))
+  if kl_weight is not None and kl_weight == 0:
+    default = configs.high_config(task)  # an HL whose card records no learning rate trained at the paper's
+    out |= {k: float(sac.get(k, getattr(default, k))) for k in PLAIN_LR_FIELDS}
+  return out
+
+
 @dataclasses.dataclass(frozen=True)
 class FinetuneSpec:
   """How A's HL is finetuned on B (module docstring); checked when made, one line per bad field.
@@ -222,8 +242,8 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
   a_vnet = "v" in a_params["q"]  # A ran SB2's SAC (SACConfig.value_net)
   a_ln = bool(card_a.sac.get("critic_layer_norm", False))
   if config is None:
-    config = configs.stage_default("finetune", backend, task=task, hidden_sizes=card_a.hidden_sizes,
-                                   normalize_observations=a_norm, value_net=a_vnet, critic_layer_norm=a_ln)
+    config = configs.stage_default("finetune", backend, task=task, **(
+        start_fields(card_a, task, kl_weight) | dict(normalize_observations=a_norm, value_net=a_vnet)))
   if spec.init == "sac" and config.value_net != a_vnet:
     raise ckpt.CheckpointError(f"{high} was trained with value_net={a_vnet} and finetuning starts from its "
                                f"critics: pass --value-net {a_vnet} (or init='policy')")
