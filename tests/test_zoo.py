@@ -198,6 +198,12 @@ def test_checkpoints_hold_no_machine_path_and_scrubbing_an_old_entry_keeps_what_
   ev.compose("zoo:point/waypoint", "zoo:point/low")
   assert low[0] in names.hash_aliases("zoo:point/low", 0) and high[None] in names.hash_aliases("zoo:point/waypoint", None)
   assert not zoo.within_noise(*zoo.recheck("point/waypoint"))
+  # a finetuning run that recorded the HL's old whole hash resumes (runner's check of what it depends on)
+  from hdt.transfer import runner
+  rec = lambda h: {"meta": {"finetuned_from": {"path": "zoo:point/waypoint", "sha256": h}}}
+  now = ckpt.content_hash("zoo:point/waypoint")
+  assert runner._same_low_as_slim_copy(rec(high[None]), rec(now)) == rec(now)
+  assert runner._same_low_as_slim_copy(rec("0" * 64), rec(now)) == rec("0" * 64)  # another HL's: refused later
   # and only while they are unchanged: another edit drops the aliases
   m = next((zoo_copy / "point/waypoint").rglob(names.ORBAX_MARKER))
   m.write_text("edited")
