@@ -1003,7 +1003,7 @@ def main(argv=None) -> int:
       code = _run(argv)
     except KeyboardInterrupt:
       print(f"hdt: {_interrupted()}", file=sys.stderr, flush=True)
-      code = 130
+      code = interrupt.exit_code()
     except Exception as e:
       if interrupt.pressed():  # Ctrl-C while a module loaded makes its import fail with another error
         print(f"hdt: {_interrupted()}", file=sys.stderr, flush=True)

@@ -4,7 +4,9 @@ Python turns SIGINT into a KeyboardInterrupt wherever the main thread is, and a 
 it there (JAX's garbage-collection callback prints "Exception ignored" and goes on). :func:`catch`
 remembers every SIGINT as well, so the run stops at its next check (:func:`raise_if_interrupted`,
 after every training chunk and before the command returns). :func:`deferred` holds SIGINT back
-while a checkpoint is written. Standard library only, so the CLI installs it before importing JAX.
+while a checkpoint is written. While a run trains (:func:`graceful`), Ctrl-C and SIGTERM let the chunk
+under way finish and be saved before it stops. Standard library only, so the CLI installs it before
+importing JAX.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import threading
 from typing import Iterator
 
 _PRESSED = threading.Event()
+_STOPPED_BY: list = []  # the signal :func:`graceful` took as a request to stop
 
 
 def _on_sigint(signum, frame):
@@ -36,6 +39,7 @@ def catch(pressed_before: bool = False) -> None:
   it cannot be raised (a finalizer, a gc callback) prints nothing; in the main thread.
   ``pressed_before``: Ctrl-C was pressed before (counts as pressed)."""
   _PRESSED.clear()
+  _STOPPED_BY.clear()
   if pressed_before:
     _PRESSED.set()
   if threading.current_thread() is threading.main_thread():
@@ -50,11 +54,41 @@ def pressed() -> bool:
   return _PRESSED.is_set()
 
 
+def exit_code() -> int:
+  """The shell's status for the signal that stopped the run: 130 (Ctrl-C), 143 (SIGTERM)."""
+  return 128 + int(_STOPPED_BY[0] if _STOPPED_BY else signal.SIGINT)
+
+
 def raise_if_interrupted() -> None:
   """KeyboardInterrupt if Ctrl-C was pressed since :func:`catch`, in case it was swallowed where it
   landed."""
   if _PRESSED.is_set():
     raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def graceful() -> Iterator[None]:
+  """Inside the block (a training loop that saves and stops when :func:`pressed` after each chunk),
+  Ctrl-C and SIGTERM (a cluster's preemption) only ask it to stop, so the chunk under way is saved
+  rather than lost; a second Ctrl-C stops at once. Main thread only; a signal the process ignores (a
+  nohup job's SIGINT) stays ignored."""
+  if threading.current_thread() is not threading.main_thread():
+    yield
+    return
+
+  def ask(signum, frame):
+    if _PRESSED.is_set():
+      raise KeyboardInterrupt
+    _STOPPED_BY[:] = [signum]
+    _PRESSED.set()
+
+  previous = {sig: signal.signal(sig, ask) for sig in (signal.SIGINT, signal.SIGTERM)
+              if signal.getsignal(sig) is not signal.SIG_IGN}
+  try:
+    yield
+  finally:
+    for sig, handler in previous.items():
+      signal.signal(sig, handler)
 
 
 @contextlib.contextmanager

@@ -513,7 +513,11 @@ def test_named_runs_accept_paths_with_equals(tmp_path):
   assert named_runs(["pm=runs/x"]) == {"pm": Path("runs/x")}
 
 
-def test_ctrl_c_exits_130_with_a_resume_hint_and_no_traceback(tmp_path):
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_ctrl_c_or_sigterm_saves_the_chunk_under_way_and_exits_with_a_resume_hint(sig, code, tmp_path):
+  """Stopped between save points (every 10% of the budget), a run keeps the chunk it was in, not only
+  the last save point, and says how to resume, in one line."""
+  import re
   out = tmp_path / "run"
   env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(ckpt.__file__).parents[2]),
                                                       os.environ.get("PYTHONPATH", "")]))
@@ -524,17 +528,20 @@ def test_ctrl_c_exits_130_with_a_resume_hint_and_no_traceback(tmp_path):
                        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
   try:
     for line in iter(p.stderr.readline, ""):
-      if "steps" in line and "ETA" in line and ckpt.has_state(out):
+      m = re.search(r"(\d+)/80000 steps", line)
+      if m and "ETA" in line and int(m.group(1)) % 8000 and ckpt.has_state(out):
+        at = int(m.group(1))  # past a save point (8000), before the next
         break
-    p.send_signal(signal.SIGINT)
+    p.send_signal(sig)
     _, rest = p.communicate(timeout=300)
   finally:
     p.kill()
-  assert p.returncode == 130, rest
+  assert p.returncode == code, rest
   lines = [l for l in rest.strip().splitlines() if "ETA" not in l]
   assert len(lines) == 1 and "Traceback" not in rest, rest
   assert lines[0].startswith("hdt: interrupted;") and "--resume" in lines[0] and str(out) in lines[0]
   assert ckpt.has_state(out) and not list(out.glob(".*.tmp")) and "Failed to import" not in rest
+  assert ckpt.load_state_info(out)["env_steps"] >= at and f"({ckpt.load_state_info(out)['env_steps']} env steps)" in lines[0]
 
 
 @pytest.mark.parametrize("after", [0.3, 1.0])

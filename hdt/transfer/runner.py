@@ -199,9 +199,10 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       ts, history, best = _resume(source, trainer, infos[0])
 
     def on_chunk(step, ts, hist, best):
-      interrupt.raise_if_interrupted()  # a Ctrl-C a library swallowed stops the run here
-      if any(d is not None for d, _ in outputs) and (
-          step // save_steps > (step - config.env_steps_per_chunk) // save_steps or step == config.total_env_steps):
+      # Ctrl-C or SIGTERM during the chunk: it is saved, then the run stops (one process: a save is collective)
+      stop = interrupt.pressed() and not sharding.several_processes()
+      due = step // save_steps > (step - config.env_steps_per_chunk) // save_steps or step == config.total_env_steps
+      if any(d is not None for d, _ in outputs) and (due or stop):
         hist = {k: np.stack(v, axis=1) for k, v in hist.items()}
         ts = sharding.gathered(ts)  # the seeds of every process, for process 0 to save
 
@@ -212,6 +213,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
                               None if best is None else part(best, p))
         with interrupt.deferred():
           sharding.on_writer(save, f"saving the training state at env step {step}")
+      interrupt.raise_if_interrupted()
 
     interrupt.raise_if_interrupted()
     start = 0 if ts is None else int(np.max(jax.device_get(ts.env_steps)))
@@ -224,7 +226,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
     progress = (options.progress or functools.partial(run_progress, start=start))(
         config.total_env_steps, quiet, stage.label)
     try:
-      with counted_mujoco_warnings(options.quiet) as warned:
+      with counted_mujoco_warnings(options.quiet) as warned, interrupt.graceful():
         res = sac_train.run(env, config, seeds, progress_fn=progress, trainer=trainer, initial_state=ts,
                             initial_history=history, initial_best=best, eval_at_start=history is None,
                             on_chunk=on_chunk, cache_key=cache_key, **({"hyper": grid} if grid else {}))
