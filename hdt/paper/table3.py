@@ -16,7 +16,8 @@ ZERO_SHOT = {("PM", "PM"): ".60 ± .22", ("PM", "Ant"): ".00 ± .00",  # (LL, HL
 
 
 def parts(pr: Preset) -> tuple[Part, ...]:
-  lows, highs = {"PM": PM_LOW, "Ant": ANT_LOW}, {"PM": High("steps", PM_LOW), "Ant": High("steps", ANT_LOW)}
+  lows, highs = {"PM": PM_LOW, "Ant": ANT_LOW}, {"PM": High("steps", PM_LOW, zoo="point/steps"),
+                                                 "Ant": High("steps", ANT_LOW)}
   zero = Part("zero_shot", "Zero-shot (success)", "steps",
               tuple(Cell(r, c, high=highs[c], low=lows[r], paper=p) for (r, c), p in ZERO_SHOT.items()))
   tuned = finetune_part("finetuning", "PM HL → Ant LL: finetuning (success)", highs["PM"], ANT_LOW, "steps", pr,
