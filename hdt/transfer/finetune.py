@@ -148,7 +148,7 @@ def start_fields(card_a: PolicyCard, task: str, kl_weight: float | None = None) 
   sac = card_a.sac
   out = dict(hidden_sizes=tuple(card_a.hidden_sizes), value_net=bool(sac.get("value_net", False)),
              critic_layer_norm=bool(sac.get("critic_layer_norm", False)))
-  if kl_weight is not None and kl_weight == 0:
+  if kl_weight == 0:
     default = configs.high_config(task)  # an HL whose card records no learning rate trained at the paper's
     out |= {k: float(sac.get(k, getattr(default, k))) for k in PLAIN_LR_FIELDS}
   return out
