@@ -86,6 +86,15 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
     assert pol.card.loaded == "best"
     assert full["per_seed"]["return"].tolist() == ev.evaluate(pol, episodes=4, key=3)["per_seed"]["return"].tolist()
   ev.compose("zoo:t/high", "zoo:t/low")
+  # each entry keeps its run's learning curves (what `hdt reproduce` draws from the zoo), nothing else of metrics.csv
+  from hdt.report import read_eval_curves
+  for entry, source in (("t/low", run), ("t/high", high)):
+    kept, orig = read_eval_curves(names.resolve(f"zoo:{entry}")), read_eval_curves(source)
+    assert kept.keys() == orig.keys() and kept
+    for col, (x, y) in orig.items():
+      np.testing.assert_array_equal(kept[col][0], x)
+      np.testing.assert_array_equal(kept[col][1], y)
+    assert not (tmp_path / "zoo" / entry / "metrics.csv").exists()
   # an entry exported before the LL's final parameters were dropped is slimmed in place, remembers the
   # hash it had, and still composes
   old_hash, info = _as_exported_before_slimming(run, tmp_path / "zoo")

@@ -177,11 +177,12 @@ def _evaluate(part: Part, cell: Cell, sources: dict, episodes: int) -> dict:
 
 def _curve(part: Part, cell: Cell, sources: dict) -> dict | None:
   """The learning curve of the cell's trained run: x in env steps of its robot (an HL's decisions
-  times its k), y per seed; None for a zoo entry (which keeps no metrics.csv)."""
+  times its k), y per seed; None for a run without them (a zoo entry exported before entries kept
+  their curves.csv)."""
   from hdt.report import read_eval_curves  # reports and plots only where a figure is drawn
   source = sources["flat" if cell.flat is not None else "high"]
-  path = Path(source.path) if source.status != "zoo" else None
-  if path is None or not (path / "metrics.csv").is_file():
+  path = Path(names.resolve(source.path))
+  if not any((path / f).is_file() for f in ("metrics.csv", "curves.csv")):
     return None
   x, y = read_eval_curves(path)[get_task(part.task).headline_column]
   k = 1 if cell.flat is not None else int(ckpt.load_meta(path)["k"])

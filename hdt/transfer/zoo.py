@@ -16,7 +16,9 @@ finetune_high_level_kl.py), and the policy of its best evaluation, which the KL 
 from __future__ import annotations
 
 import contextlib
+import csv
 import datetime
+import io
 import json
 import shutil
 from pathlib import Path
@@ -32,6 +34,7 @@ from hdt.transfer import names, rundir
 from hdt.transfer.names import PREFIX, ZooError, check_name, entry_names, resolve
 from hdt.version import __version__
 
+CURVES = "curves.csv"  # an entry's learning curves: the evaluation rows of its run's metrics.csv
 CHECK_EPISODES, CHECK_KEY = 8, 7  # per seed; the test suite replays every entry's check
 
 
@@ -91,6 +94,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   try:
     shutil.copytree(run, tmp, dirs_exist_ok=True,
                     ignore=shutil.ignore_patterns("state", "state.old", "tb", "report", "metrics.csv", ".*"))
+    _keep_eval_rows(run / "metrics.csv", tmp / CURVES)
     low_hash = None
     if low:  # the HL's hand-off metadata names the zoo LL (and its hash), not a local run directory
       seed = int((meta.get("low") or {}).get("seed_index", 0))
@@ -112,6 +116,23 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
       with contextlib.suppress(OSError):
         dest.parent.rmdir()
     raise
+
+
+def _keep_eval_rows(metrics: Path, out: Path) -> None:
+  """The evaluation rows of a run's metrics.csv (its learning curves, a few kB) as ``out``: what
+  ``hdt reproduce`` draws a figure's curves from when its runs come from the zoo."""
+  if not metrics.is_file():
+    return
+  with open(metrics, newline="") as f:
+    reader = csv.DictReader(f)
+    cols = [c for c in reader.fieldnames or [] if c in ("seed", "kind", "env_steps") or c.startswith("eval/")]
+    rows = [{c: r[c] for c in cols} for r in reader if r.get("kind") == "eval"]
+  if rows:
+    text = io.StringIO()
+    writer = csv.DictWriter(text, cols, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic.write_text(out, text.getvalue())
 
 
 POLICY_KEYS = ("policy", normalizer.KEY)  # what an LL entry keeps, and an HL entry of its best (the KL reference)
