@@ -11,12 +11,14 @@ from hdt.paper.table import Part, Table, finetune_part
 
 PM_LOW = Low("point", zoo="point/low")
 PM_HIGH = {"waypoint": High("waypoint", PM_LOW, zoo="point/waypoint"), "maze": High("maze", PM_LOW, zoo="point/maze")}
-# name: (B, task, options, title, the zero-shot level the paper's Table 1 gives)
-PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 ± 39"),
-          "ant_maze_end": ("ant", "maze", (("goal", "end"),), "Ant Maze End (success)", ".30 ± .08"),
-          "ant_maze_sample": ("ant", "maze", (("goal", "sample"),), "Ant Maze Sample (success)", ".62 ± .04"),
+# name: (B, task, options, title, the zero-shot level the paper's Table 1 gives, zoo entries of its methods)
+PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 ± 39",
+                           {"finetune_kl": "ant/waypoint_ft_kl_from_pm", "finetune": "ant/waypoint_ft_from_pm",
+                            "scratch": "ant/waypoint_200k"}),
+          "ant_maze_end": ("ant", "maze", (("goal", "end"),), "Ant Maze End (success)", ".30 ± .08", {}),
+          "ant_maze_sample": ("ant", "maze", (("goal", "sample"),), "Ant Maze Sample (success)", ".62 ± .04", {}),
           "quadruped_maze_sample": ("quadruped", "maze", (("goal", "sample"),), "Quadruped Maze Sample (success)",
-                                    ".78 ± .08")}
+                                    ".78 ± .08", {})}
 # What the paper says of the curves (its numbers are curves only)
 WORDS = {"finetune_kl": "above plain finetuning, modestly on Maze", "finetune": "above HL scratch",
          "full": "unsuccessful without hierarchy"}
@@ -24,8 +26,8 @@ WORDS = {"finetune_kl": "above plain finetuning, modestly on Maze", "finetune": 
 
 def parts(pr: Preset) -> tuple[Part, ...]:
   return tuple(finetune_part(name, title, PM_HIGH[task], Low(b, zoo=LEGGED_LOW.get(b)), task, pr, options,
-                             paper=dict(WORDS, zero_shot=zero))
-               for name, (b, task, options, title, zero) in PANELS.items())
+                             paper=dict(WORDS, zero_shot=zero), zoo=zoo)
+               for name, (b, task, options, title, zero, zoo) in PANELS.items())
 
 
 TABLE = Table("fig6", "Figure 6: finetuning from the PM on navigation", parts,
