@@ -65,10 +65,10 @@ def read_metrics(path: Path) -> list[dict]:
 
 def read_eval_curves(run_dir: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
   """``{column: (env_steps[T], values[S, T])}`` of the evaluation rows of a run's metrics.csv (a zoo
-  entry: of the curves.csv its export kept)."""
+  entry: of the :data:`~hdt.transfer.checkpoint.CURVES_CSV` its export kept)."""
   path = Path(run_dir) / "metrics.csv"
-  if not path.exists() and (Path(run_dir) / "curves.csv").exists():
-    path = Path(run_dir) / "curves.csv"
+  if not path.exists() and (Path(run_dir) / ckpt.CURVES_CSV).exists():
+    path = Path(run_dir) / ckpt.CURVES_CSV
   if not path.exists():
     raise FileNotFoundError(f"{path} not found: is {run_dir} a run directory written by hdt?")
   rows = [r for r in read_metrics(path) if r["kind"] == "eval"]

@@ -182,9 +182,10 @@ def _curve(part: Part, cell: Cell, sources: dict) -> dict | None:
   from hdt.report import read_eval_curves  # reports and plots only where a figure is drawn
   source = sources["flat" if cell.flat is not None else "high"]
   path = Path(names.resolve(source.path))
-  if not any((path / f).is_file() for f in ("metrics.csv", "curves.csv")):
+  try:
+    x, y = read_eval_curves(path)[get_task(part.task).headline_column]
+  except FileNotFoundError:
     return None
-  x, y = read_eval_curves(path)[get_task(part.task).headline_column]
   k = 1 if cell.flat is not None else int(ckpt.load_meta(path)["k"])
   return dict(x=[float(v) * k for v in x], y=[[float(v) for v in row] for row in y])
 

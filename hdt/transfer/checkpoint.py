@@ -38,6 +38,7 @@ from hdt.transfer.names import resolve as zoo_path  # zoo:NAME wherever a run is
 from hdt.version import __version__
 
 FORMAT_VERSION = 1
+CURVES_CSV = "curves.csv"  # a zoo entry's learning curves: the evaluation rows of its run's metrics.csv
 
 
 def write_json_atomic(path: Path, obj: Any) -> None:

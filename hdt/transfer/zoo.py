@@ -34,7 +34,6 @@ from hdt.transfer import names, rundir
 from hdt.transfer.names import PREFIX, ZooError, check_name, entry_names, resolve
 from hdt.version import __version__
 
-CURVES = "curves.csv"  # an entry's learning curves: the evaluation rows of its run's metrics.csv
 CHECK_EPISODES, CHECK_KEY = 8, 7  # per seed; the test suite replays every entry's check
 
 
@@ -94,7 +93,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   try:
     shutil.copytree(run, tmp, dirs_exist_ok=True,
                     ignore=shutil.ignore_patterns("state", "state.old", "tb", "report", "metrics.csv", ".*"))
-    _keep_eval_rows(run / "metrics.csv", tmp / CURVES)
+    _keep_eval_rows(run / "metrics.csv", tmp / ckpt.CURVES_CSV)
     low_hash = None
     if low:  # the HL's hand-off metadata names the zoo LL (and its hash), not a local run directory
       seed = int((meta.get("low") or {}).get("seed_index", 0))
