@@ -742,6 +742,28 @@ def test_a_second_writer_is_refused_naming_the_pid_and_a_dead_holder_is_taken_ov
   assert ckpt.list_seeds(res.run_dir) == [0, 1]
 
 
+@pytest.mark.parametrize("how", ["deleted", "replaced"])
+def test_a_run_whose_directory_was_deleted_or_replaced_writes_nothing_more(how, tmp_path):
+  """A user deletes a live run's directory (or moves it) and starts a new run there while the old
+  process is still saving (on Ctrl-C it saves its state): the old one must not write into the new one."""
+  run = tmp_path / "run"
+  tree = {"w": np.ones(3, np.float32)}
+  with rundir.claim(run):
+    ckpt.save_state(run, tree, {}, {"env_steps": 1})
+    shutil.rmtree(run) if how == "deleted" else run.rename(tmp_path / "moved")
+    if how == "replaced":
+      run.mkdir()
+      (run / "theirs.txt").write_text("a new run's file")
+    before = _snapshot(run) if run.exists() else None
+    with pytest.raises(rundir.RunDirError, match="was deleted or replaced while this process wrote it"):
+      ckpt.save_state(run, tree, {}, {"env_steps": 2})
+    with pytest.raises(rundir.RunDirError, match="was deleted or replaced"):
+      ckpt.save(run, 0, tree, {})
+    assert (_snapshot(run) if run.exists() else None) == before
+  if how == "replaced":
+    assert ckpt.load_state_info(tmp_path / "moved")["env_steps"] == 1  # the moved run is intact
+
+
 def test_resume_from_every_state_a_kill_can_leave(uninterrupted, tmp_path):
   """state/ (tested above), state.old (killed between the two renames), and only a temporary
   directory (killed during the first save: nothing to resume, a fresh start needs no --overwrite)."""

@@ -31,7 +31,7 @@ import orbax.checkpoint as ocp
 
 from hdt import atomic
 from hdt.agents import normalizer, sharding
-from hdt.transfer import names
+from hdt.transfer import names, rundir
 from hdt.transfer.names import (SEED_HASHES, CheckpointError, content_hash, current, existing_seed_dir, list_seeds,
                                seed_dir)
 from hdt.transfer.names import resolve as zoo_path  # zoo:NAME wherever a run is read
@@ -115,6 +115,7 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
   """Atomically write one seed's parameters and metadata into ``run_dir/seed_<i>``; ``best`` =
   (params, info) of the best periodic evaluation goes to ``best/params`` and ``meta["best"]``."""
   run_dir = Path(run_dir).resolve()  # orbax wants absolute paths
+  rundir.check_held(run_dir)
   params = jax.tree.map(np.asarray, jax.device_get(params))
   meta = dict(meta, format_version=FORMAT_VERSION, hdt_version=__version__, seed_index=seed_index)
   if best is not None:
@@ -125,6 +126,7 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
     if best is not None:
       orbax_save(tmp / "best" / "params", jax.tree.map(np.asarray, best[0]))
     write_json_atomic(tmp / "meta.json", meta)
+    rundir.check_held(run_dir)  # again just before the swap: the write takes seconds
 
   return _atomic_dir(seed_dir(run_dir, seed_index), write)
 
@@ -323,6 +325,7 @@ def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], i
   run metadata, ...) into ``run_dir/state``. The previous state stays loadable until the new one
   is complete."""
   run_dir = Path(run_dir).resolve()
+  rundir.check_held(run_dir)
   leaves = _named_leaves(tree)
   hist = [(k, np.asarray(v)) for k, v in history.items()]
   best_leaves = [] if best is None else _named_leaves(best)
@@ -337,6 +340,7 @@ def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], i
   def write(tmp: Path):
     orbax_save(tmp / "arrays", {k: v for k, v in arrays.items() if v})
     write_json_atomic(tmp / "state.json", info)
+    rundir.check_held(run_dir)  # again just before the swap: the write takes seconds
 
   return _atomic_dir(state_dir(run_dir), write)
 

@@ -13,7 +13,9 @@ naming what is there, and never with the advice to overwrite it.
 While a process writes a directory it holds an exclusive ``flock`` on the directory itself (and on
 ``.hdt-lock`` in it, which names its PID); the kernel drops the locks when the process dies (even by
 SIGKILL), so a lock left by a dead process is simply taken over, and deleting ``.hdt-lock`` does not
-unlock a directory. ``overwrite`` moves the old directory aside to a unique hidden name of hdt's own
+unlock a directory. A lock guards the directory, not its name: if the directory is deleted or moved
+while its process runs (and perhaps a new run started under its name), that process's saves are
+refused (:func:`check_held`). ``overwrite`` moves the old directory aside to a unique hidden name of hdt's own
 with one rename before anything new is written, so the new run never shares the directory with a
 file of the old one, and a sibling hdt did not create is never touched. A claim that fails before
 anything was saved removes what it created.
@@ -46,6 +48,7 @@ SYSTEM_DIRS = tuple(Path(p) for p in ("/bin", "/boot", "/dev", "/etc", "/lib", "
                                       "/sys", "/usr", "/var/lib", "/var/log"))
 
 LAST_CLAIMED: list[Path] = []  # directories claimed by this process, latest last (for the Ctrl-C message)
+_HELD: dict[Path, int] = {}  # directories this process holds locked -> an open descriptor of each
 
 
 class RunDirError(ValueError):
@@ -240,13 +243,32 @@ def _locked(path: Path, kind: str, mark: bool = True) -> Iterator[None]:
     os.write(fds[1], f"{os.getpid()}\n".encode())
     if mark and not (path / MARKER).exists():
       atomic.write_json(path / MARKER, _marker(kind))
+    _HELD[Path(path).resolve()] = fds[0]
     yield
   finally:
+    _HELD.pop(Path(path).resolve(), None)
     if dir_locked:  # the directory's own lock guards the PID file: no other process holds it now
       with contextlib.suppress(OSError):
         os.unlink(LOCK, dir_fd=fds[0])  # in the locked directory, wherever it was moved
     for fd in fds:
       os.close(fd)  # releases the locks
+
+
+def check_held(path) -> None:
+  """Refuses (RunDirError) to write at ``path`` if the directory this process locked around it was
+  deleted or replaced meanwhile (a lock guards a directory, not its name): whatever holds that name
+  now, e.g. a new run started in its place, is not this process's to write."""
+  path = Path(path).resolve()
+  for held, fd in list(_HELD.items()):
+    if path == held or held in path.parents:
+      try:
+        now, ours = os.stat(held), os.fstat(fd)
+        same = (now.st_ino, now.st_dev) == (ours.st_ino, ours.st_dev)
+      except FileNotFoundError:
+        same = False
+      if not same:
+        raise RunDirError(f"{held} was deleted or replaced while this process wrote it, so nothing more is saved "
+                          f"there (what holds that name now is left as it is); run the command again")
 
 
 def _aside_pattern(path: Path) -> str:

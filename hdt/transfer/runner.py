@@ -300,6 +300,7 @@ def counted_mujoco_warnings(quiet: bool = False):
 
 def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params, res) -> None:
   """The run's outputs; meta.json last, so a run directory with meta.json is complete."""
+  rundir.check_held(run_dir)
   unit = "HL decisions" if meta.get("level") == "high" else "env steps"  # what total_env_steps counts
   ckpt.write_json_atomic(run_dir / "config.json", dict(dataclasses.asdict(config), budget_unit=unit))
   for i, s in enumerate(seeds):
