@@ -236,9 +236,10 @@ def test_committed_zoo_stays_a_few_megabytes():
   size = lambda d: sum(p.stat().st_size for p in d.rglob("*") if p.is_file())
   # per entry (3 seeds): an LL's policies ≈ 0.2 MB, an HL's SAC ≈ 0.4 MB, the legged LLs ≈ 0.55 MB; a
   # replay buffer, an Adam state or an LL's final SAC kept by mistake is more than 0.8 MB. The bound
-  # (README, "Results") was 10 MB until the navigation half's legged entries.
+  # (README, "Results") was 10 MB until the navigation half's legged entries, 15 MB until the
+  # quadruped's HL and the ant's LL on steps.
   total = size(names.ZOO_DIR) / 1e6
-  assert total < 15, f"zoo/ holds {total:.1f} MB: too many entries to commit"
+  assert total < 20, f"zoo/ holds {total:.1f} MB: too many entries to commit"
   for info in zoo.entries():
     mb = size(names.ZOO_DIR / info["name"]) / 1e6
     assert mb < 0.8, f"zoo entry {info['name']} holds {mb:.2f} MB; export policies only (zoo.export slims them)"
