@@ -54,7 +54,17 @@ def jsonable(x):
   raise TypeError(f"not JSON serialisable: {type(x)}")
 
 
-_atomic_dir = atomic.replace_dir
+def _replace_in_run(run_dir: Path, final: Path, write) -> Path:
+  """:func:`atomic.replace_dir` of ``final`` in ``run_dir``, refused if the run directory this process
+  locked is no longer at that name (:func:`rundir.check_held`): before anything is made, and again
+  just before the swap, since the write takes seconds."""
+  rundir.check_held(run_dir)
+
+  def checked(tmp: Path):
+    write(tmp)
+    rundir.check_held(run_dir)
+
+  return atomic.replace_dir(final, checked)
 
 
 @contextlib.contextmanager
@@ -115,7 +125,6 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
   """Atomically write one seed's parameters and metadata into ``run_dir/seed_<i>``; ``best`` =
   (params, info) of the best periodic evaluation goes to ``best/params`` and ``meta["best"]``."""
   run_dir = Path(run_dir).resolve()  # orbax wants absolute paths
-  rundir.check_held(run_dir)
   params = jax.tree.map(np.asarray, jax.device_get(params))
   meta = dict(meta, format_version=FORMAT_VERSION, hdt_version=__version__, seed_index=seed_index)
   if best is not None:
@@ -126,9 +135,8 @@ def save(run_dir: str | Path, seed_index: int, params: Any, meta: dict,
     if best is not None:
       orbax_save(tmp / "best" / "params", jax.tree.map(np.asarray, best[0]))
     write_json_atomic(tmp / "meta.json", meta)
-    rundir.check_held(run_dir)  # again just before the swap: the write takes seconds
 
-  return _atomic_dir(seed_dir(run_dir, seed_index), write)
+  return _replace_in_run(run_dir, seed_dir(run_dir, seed_index), write)
 
 
 def check_unchanged(run_dir: str | Path, seed_index: int) -> None:
@@ -325,7 +333,6 @@ def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], i
   run metadata, ...) into ``run_dir/state``. The previous state stays loadable until the new one
   is complete."""
   run_dir = Path(run_dir).resolve()
-  rundir.check_held(run_dir)
   leaves = _named_leaves(tree)
   hist = [(k, np.asarray(v)) for k, v in history.items()]
   best_leaves = [] if best is None else _named_leaves(best)
@@ -340,9 +347,8 @@ def save_state(run_dir: str | Path, tree: Any, history: dict[str, np.ndarray], i
   def write(tmp: Path):
     orbax_save(tmp / "arrays", {k: v for k, v in arrays.items() if v})
     write_json_atomic(tmp / "state.json", info)
-    rundir.check_held(run_dir)  # again just before the swap: the write takes seconds
 
-  return _atomic_dir(state_dir(run_dir), write)
+  return _replace_in_run(run_dir, state_dir(run_dir), write)
 
 
 def load_state_info(run_dir: str | Path) -> dict:

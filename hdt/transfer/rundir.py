@@ -229,7 +229,7 @@ def _flock(fd: int, path: Path) -> bool:
 def _locked(path: Path, kind: str, mark: bool = True) -> Iterator[None]:
   """Holds the locks of ``path`` (creating it, and with ``mark`` its marker) until the block ends."""
   atomic.make_dirs(path)
-  fds, dir_locked = [], False
+  fds, dir_locked, key = [], False, Path(path).resolve()
   try:
     fds.append(os.open(path, os.O_RDONLY | os.O_DIRECTORY))
     dir_locked = _flock(fds[0], path)
@@ -237,21 +237,27 @@ def _locked(path: Path, kind: str, mark: bool = True) -> Iterator[None]:
     if not (_flock(fds[1], path) or dir_locked):
       raise RunDirError(f"cannot lock {path} (its file system does not support locks); pass an --out on a "
                         f"local disk")
-    if os.fstat(fds[0]).st_ino != os.stat(path).st_ino:  # replaced while we waited: start over
+    if not _is_at(fds[0], path):  # replaced while we waited: start over
       raise RunDirError(f"{path} was replaced by another process while this one claimed it; run the command again")
     os.ftruncate(fds[1], 0)
     os.write(fds[1], f"{os.getpid()}\n".encode())
     if mark and not (path / MARKER).exists():
       atomic.write_json(path / MARKER, _marker(kind))
-    _HELD[Path(path).resolve()] = fds[0]
+    _HELD[key] = fds[0]
     yield
   finally:
-    _HELD.pop(Path(path).resolve(), None)
+    _HELD.pop(key, None)
     if dir_locked:  # the directory's own lock guards the PID file: no other process holds it now
       with contextlib.suppress(OSError):
         os.unlink(LOCK, dir_fd=fds[0])  # in the locked directory, wherever it was moved
     for fd in fds:
       os.close(fd)  # releases the locks
+
+
+def _is_at(fd: int, path: Path) -> bool:
+  """Whether the open directory ``fd`` is the one at ``path`` now (FileNotFoundError if none is)."""
+  now, ours = os.stat(path), os.fstat(fd)
+  return (now.st_ino, now.st_dev) == (ours.st_ino, ours.st_dev)
 
 
 def check_held(path) -> None:
@@ -262,8 +268,7 @@ def check_held(path) -> None:
   for held, fd in list(_HELD.items()):
     if path == held or held in path.parents:
       try:
-        now, ours = os.stat(held), os.fstat(fd)
-        same = (now.st_ino, now.st_dev) == (ours.st_ino, ours.st_dev)
+        same = _is_at(fd, held)
       except FileNotFoundError:
         same = False
       if not same:
