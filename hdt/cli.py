@@ -167,8 +167,10 @@ def _common(p, out_help="run directory (default: runs/<what>)"):
   p.add_argument("--quiet", action="store_true", help="no progress output (CI)")
 
 
-def _training(p, env_opts=True):
+def _training(p, env_opts=True, fast=False):
   _common(p)
+  if fast:
+    _fast_option(p)
   p.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto",
                  help="physics backend: auto = native MuJoCo on CPU, MJX on accelerators (default: %(default)s)")
   p.add_argument("--resume", action="store_true",
@@ -182,6 +184,17 @@ def _training(p, env_opts=True):
                         "--set delta_max=2.0 (repeatable)")
   _add_dataclass_options(p, SACConfig, "", "SAC hyper-parameters",
                          "Default: the paper's value for the agent/level (SPEC 4), then --preset's budget.")
+
+
+def _fast_option(p):
+  p.add_argument("--fast", action="store_true",
+                 help="hdt's fast setting of a legged LL, that of the zoo's legged LLs (LL levels only): "
+                      + " ".join(f"--{k.replace('_', '-')} {_flag_text(v)}" for k, v in configs.FAST_LOW.items())
+                      + " (SAC options given win over it)")
+
+
+def _flag_text(v) -> str:
+  return " ".join(map(str, v)) if isinstance(v, tuple) else str(v).lower() if isinstance(v, bool) else f"{v:g}"
 
 
 def _low_params(p):
@@ -200,7 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
   tsub = t.add_subparsers(dest="level", required=True, metavar="LEVEL", parser_class=_Parser)
   lo = tsub.add_parser("low", help="goal-reaching LL of --agent on its reach task", formatter_class=fmt)
   lo.add_argument("--agent", required=True, help=AGENT_HELP)
-  _training(lo)
+  _training(lo, fast=True)
   hi = tsub.add_parser("high", help="HL SAC on --task over the frozen LL in --low", formatter_class=fmt)
   hi.add_argument("--task", required=True, help="waypoint, maze, steps, push1, push2, insert")
   hi.add_argument("--low", required=True, type=Path, help="LL run directory (from `hdt train low`)")
@@ -221,7 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
   al.add_argument("--imitate-params", choices=("best", "final"), default="best",
                   help="A's parameters to imitate: its best periodic evaluation's (as the authors; final "
                        "if it has none), or its final ones")
-  _training(al)
+  _training(al, fast=True)
   _add_dataclass_options(al, DiscConfig, "disc-", "discriminator", "Algorithm 1's discriminator (SPEC 4).")
 
   ft = sub.add_parser("finetune", help="finetune the HL in --high on the LL in --low, KL-tied to it",
@@ -287,6 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
   _add_dataclass_options(sw, DiscConfig, "disc-", "discriminator (align)", "Algorithm 1's discriminator (SPEC 4).")
   sw.add_argument("--set", action="append", metavar="KEY=VALUE", default=[])
   sw.add_argument("--backend", choices=("auto", "native", "mjx"), default="auto")
+  _fast_option(sw)
   _add_dataclass_options(sw, SACConfig, "", "SAC hyper-parameters (every grid point)",
                          "Default: as `hdt train` (the paper's value for the agent/level, then --preset's budget).")
   _common(sw, "sweep directory, one run per grid point (default: runs/sweep-<level>)")
@@ -371,8 +385,12 @@ def sac_config(args, level: str, agent=None, task=None, **extra) -> SACConfig:
   ``--preset``'s config of ``level`` for ``agent`` / ``task`` (``paper`` with MJX on a GPU: the
   accelerator throughput of the defaults table), with ``extra`` and the command's SAC options applied."""
   _import_hdt()
+  fast = configs.FAST_LOW if getattr(args, "fast", False) else {}
+  if fast and level != "low":
+    raise CLIError(f"--fast is the setting of a legged LL (train low, align, sweep low|align), not of a {level} "
+                   f"run: drop --fast, or give the SAC options one by one")
   return configs.config(level, args.preset, agent=agent, task=task, backend=getattr(args, "backend", None),
-                        **(extra | _overrides(args, SACConfig, "")))
+                        **(extra | fast | _overrides(args, SACConfig, "")))
 
 
 def _check_agent_task(agent=None, task=None):

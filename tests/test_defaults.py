@@ -146,3 +146,29 @@ def test_kl_term_is_logged_as_kl():
   m = metrics([kl_plugin(networks.policy_apply, networks.policy_init(jax.random.PRNGKey(1)), 1.0, 10)])
   assert {"kl", "kl_weight"} <= set(m) and "regularizer" not in m
   assert not {"kl", "kl_weight", "regularizer"} & set(metrics([]))
+
+
+def test_fast_is_the_setting_the_zoos_legged_lls_were_trained_with():
+  """`--fast` on top of `--preset paper` gives, field for field, the SAC config each zoo LL named
+  *_fast_* records (their commands spelled the options out); options given win, HLs refuse it."""
+  import json
+
+  from hdt.agents.sac import SACConfig
+  from hdt.transfer import names
+  entries = sorted(p.parent for p in names.ZOO_DIR.glob("*/*fast*/config.json"))
+  assert len(entries) >= 6
+  for entry in entries:
+    recorded = json.loads((entry / "config.json").read_text())
+    command = json.loads((entry / "zoo.json").read_text())["command"].split()
+    verb = ["align", "--imitate", "x"] if command[1] == "align" else ["train", "low"]
+    argv = verb + ["--agent", command[command.index("--agent") + 1], "--preset", "paper", "--fast",
+                   "--total-env-steps", str(recorded["total_env_steps"])]
+    got = dataclasses.asdict(cli.sac_config(cli.build_parser().parse_args(argv), "low", entry.parent.name))
+    want = dataclasses.asdict(SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in recorded.items()
+                                           if k != "budget_unit"}))
+    assert got == want, entry.name
+  args = cli.build_parser().parse_args(["train", "low", "--agent", "ant", "--fast", "--num-envs", "4"])
+  assert cli.sac_config(args, "low", "ant").num_envs == 4
+  args = cli.build_parser().parse_args(["sweep", "high", "--task", "waypoint", "--low", "x", "--fast"])
+  with pytest.raises(cli.CLIError, match="--fast is the setting of a legged LL"):
+    cli.sac_config(args, "high", task="waypoint")

@@ -29,6 +29,13 @@ _LOW = {
 # HighLevelEnv is one sub-goal; utils/trainer.py, utils/loader.py).
 _HIGH = dict(actor_lr=3e-4, batch_size=64, hidden_sizes=(64, 64), buffer_size=50_000)
 _CHUNK = 1000  # training steps per compiled chunk unless a preset or the caller sets it
+# hdt's fast setting of a legged LL (`--fast`; RESULTS.md, Table 1 ‡): twin-min critics with LayerNorm at
+# lr 1e-3, [256,256], batch 128, time limits bootstrapped, one update per env step over 8 envs, and 50
+# evaluation episodes every 10k env steps. The zoo's legged LLs were trained with it on top of
+# ``--preset paper``; the authors' SB2 SAC stays the paper preset's default.
+FAST_LOW = dict(hidden_sizes=(256, 256), batch_size=128, critic_layer_norm=True, bootstrap_time_limits=True,
+                actor_lr=1e-3, critic_lr=1e-3, alpha_lr=1e-3, value_net=False, num_envs=8, updates_per_step=8,
+                steps_per_chunk=1250, num_eval_episodes=50)
 
 
 def family_key(agent: str) -> str:
