@@ -90,8 +90,11 @@ def _curves(fig, ax, series, hline=None, title="", xlabel="env steps of B", ylab
     m, s = np.nanmean(y, axis=0), np.nanstd(y, axis=0)
     (line,) = ax.plot(x, m, label=f"{name} (n={y.shape[0]})")
     ax.fill_between(x, m - s, m + s, color=line.get_color(), alpha=0.2, lw=0)
-  for name, v in (hline or {}).items():
-    ax.axhline(v, ls="--", color="purple", lw=1, label=f"{name} ({v:.3g})")
+  # several reference levels (zero-shot, the paper's numbers) each get their own dash and colour
+  styles = (("--", "purple"), (":", "black"), ("-.", "grey"), ((0, (5, 1, 1, 1)), "brown"))
+  for i, (name, v) in enumerate((hline or {}).items()):
+    ls, color = styles[i % len(styles)]
+    ax.axhline(v, ls=ls, color=color, lw=1, label=f"{name} ({v:.3g})")
   ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
   if ylim is not None:
     ax.set_ylim(*ylim)
