@@ -211,6 +211,24 @@ def hdt_loop_seeds(label, env, cfg, seeds, make_eval, thresholds, max_seconds, l
                final_metric=curve[-1][2], load_end=load(), **shared) for seed, curve in zip(seeds, curves)]
 
 
+def shown_path(path) -> str:
+  """``path`` as a results file records it: relative to the working directory, or ``<tmp>/NAME`` for a
+  temporary directory (nothing machine-specific in a committed JSON)."""
+  if path is None:
+    return None
+  path = os.path.abspath(str(path))
+  tmp = os.path.abspath(tempfile.gettempdir())
+  if os.path.commonpath([path, tmp]) == tmp:
+    return "<tmp>/" + os.path.basename(path)
+  return os.path.relpath(path)
+
+
+def shown_args(args) -> dict:
+  """The command-line arguments as recorded, path-valued ones through :func:`shown_path`."""
+  paths = ("compile_cache", "out", "low_run")
+  return {k: shown_path(v) if k in paths and isinstance(v, str) else v for k, v in vars(args).items()}
+
+
 # ------------------------------------------------------------------------------------------------
 # SBX
 
@@ -414,7 +432,7 @@ def main():
 
   out = dict(machine=dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__,
                           load_start=load()),
-             args=vars(args), agents={})
+             args=shown_args(args), agents={})
   if os.path.exists(args.out) and not args.quick:  # keep other agents' rows from earlier runs
     with open(args.out) as f:
       prev = json.load(f)

@@ -144,7 +144,7 @@ def ensure_low(low_dir: str, log) -> dict:
     log(f"   LL trained in {time.perf_counter() - t:.0f}s (in neither clock)")
   with open(os.path.join(low_dir, "config.json")) as f:
     cfg = json.load(f)
-  return dict(dir=os.path.relpath(low_dir), total_env_steps=cfg["total_env_steps"],
+  return dict(dir=ttq.shown_path(low_dir), total_env_steps=cfg["total_env_steps"],
               num_envs=cfg["num_envs"], updates_per_step=cfg["updates_per_step"])
 
 
@@ -401,7 +401,7 @@ def main():
   hdt_names = args.hdt_configs.split(",")[:1] if args.quick else args.hdt_configs.split(",")
 
   out = dict(machine=dict(platform=platform.platform(), cpus=os.cpu_count(), jax=jax.__version__,
-                          load_start=ttq.load()), args=dict(vars(args), out=os.path.relpath(args.out)), low=low, agents={})
+                          load_start=ttq.load()), args=ttq.shown_args(args), low=low, agents={})
   res = dict(threshold=thr, thresholds=thrs, eval_every=every, max_steps=cap,
              eval_episodes=args.eval_episodes, sbx_hyper=task["sbx"], hdt={}, sbx=None,
              higher=True, unit="", metric=f"eval {task['metric']} ", results_key=task["results_key"],

@@ -14,7 +14,7 @@
   hdt render --policy zoo:arm3/low --out arm3.mp4 video of a policy (or --high RUN --low RUN --task T)
   hdt quickstart                                  minutes-scale tour on a CPU
 
-Every sub-command takes --seeds N, --preset smoke|cpu|paper, --out DIR and --quiet.
+All but zoo and render take --seeds N, --preset smoke|cpu|paper, --out DIR and --quiet.
 """
 
 from __future__ import annotations

@@ -291,3 +291,16 @@ def test_an_hl_run_started_over_an_older_zoo_copy_resumes_after_the_entry_is_sli
   _break_first_layer(tmp_path / "zoo", shuffle=False)
   with pytest.raises(ckpt.CheckpointError, match="content hash differs"):
     train_high("waypoint", "zoo:t/low", cfg(3 * steps), options=RunOptions(out=high, quiet=True, resume=True))
+
+
+def test_results_zoo_section_names_every_committed_entry_and_retires_only_absent_ones():
+  import re
+  text = (names.ZOO_DIR.parent / "RESULTS.md").read_text()
+  table = text[text.index("| group | entries | status |"):]
+  table = table[:table.index("\n\n")]
+  rows = {r.split(" | ")[0].strip("| "): set(re.findall(r"`([a-z0-9_]+/[a-z0-9_]+)`", r)) for r in table.splitlines()[2:]}
+  live = set(zoo.entry_names())
+  listed = set().union(*(v for k, v in rows.items() if k != "retired"))
+  assert live - listed == set(), f"RESULTS.md's Zoo table misses {sorted(live - listed)}"
+  assert listed - live == set(), f"RESULTS.md's Zoo table lists absent entries {sorted(listed - live)}"
+  assert rows["retired"] & live == set(), f"retired but still in the zoo: {sorted(rows['retired'] & live)}"
