@@ -25,7 +25,8 @@ def parts(pr: Preset) -> tuple[Part, ...]:
                         methods=("finetune", "finetune_kl", "scratch"),
                         paper={"zero_shot": ".32 ± .16", "finetune": ".53 ± .09", "finetune_kl": ".52 ± .13",
                                "scratch": ".59 ± .05"},
-                        zoo={"scratch": ANT_HIGH, "finetune_kl": "ant/steps_ft_kl_from_pm_120k"})
+                        zoo={"scratch": ANT_HIGH, "finetune_kl": "ant/steps_ft_kl_from_pm_120k",
+                             "finetune": "ant/steps_ft_from_pm_120k"})
   return zero, tuned
 
 
