@@ -212,14 +212,14 @@ def hdt_loop_seeds(label, env, cfg, seeds, make_eval, thresholds, max_seconds, l
 
 
 def shown_path(path) -> str:
-  """``path`` as a results file records it: relative to the working directory, or ``<tmp>/NAME`` for a
+  """``path`` as a results file records it: relative to the working directory, or ``<tmp>/...`` under the
   temporary directory (nothing machine-specific in a committed JSON)."""
   if path is None:
     return None
   path = os.path.abspath(str(path))
   tmp = os.path.abspath(tempfile.gettempdir())
   if os.path.commonpath([path, tmp]) == tmp:
-    return "<tmp>/" + os.path.basename(path)
+    return "<tmp>/" + os.path.relpath(path, tmp)
   return os.path.relpath(path)
 
 
