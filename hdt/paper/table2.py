@@ -24,7 +24,8 @@ ZOO_B_LOW = {**LEGGED_LOW, "arm3": "arm3/low_paper",
              ("arm4", "arm3"): "arm4/low_aligned_arm3_1p2m", ("arm4", "arm2"): "arm4/low_aligned_arm2_1p2m",
              (("arm4", "insert"), "arm3"): "arm4/low_insert_aligned_arm3_1p2m",
              ("ant", "point"): "ant/low_aligned_pm_fast_1200k",
-             ("quadruped", "point"): "quadruped/low_aligned_pm_fast_1200k"}
+             ("quadruped", "point"): "quadruped/low_aligned_pm_fast_1200k",
+             ("ant3", "point"): "ant3/low_aligned_pm_fast_1200k"}
 
 # (A, B, the paper's zero-shot, discrim) per part
 PAPER = {
