@@ -16,7 +16,8 @@ PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 
                            {"finetune_kl": "ant/waypoint_ft_kl_from_pm", "finetune": "ant/waypoint_ft_from_pm",
                             "scratch": "ant/waypoint_200k"}),
           "ant_maze_end": ("ant", "maze", (("goal", "end"),), "Ant Maze End (success)", ".30 ± .08", {}),
-          "ant_maze_sample": ("ant", "maze", (("goal", "sample"),), "Ant Maze Sample (success)", ".62 ± .04", {}),
+          "ant_maze_sample": ("ant", "maze", (("goal", "sample"),), "Ant Maze Sample (success)", ".62 ± .04",
+                              {"finetune_kl": "ant/maze_sample_ft_kl_from_pm_200k", "scratch": "ant/maze_200k"}),
           "quadruped_maze_sample": ("quadruped", "maze", (("goal", "sample"),), "Quadruped Maze Sample (success)",
                                     ".78 ± .08", {})}
 # What the paper says of the curves (its numbers are curves only)
