@@ -11,13 +11,8 @@ from hdt.transfer import evaluate as ev
 from hdt.transfer import names, zoo
 
 
-def legged(name: str) -> bool:
-  return configs.family_key(name.split("/")[0]) == "legged"
-
-
-# the legged agents' entries (long episodes, 10-35 s each) are in test_zoo_legged.py, which
-# pytest-xdist's loadfile runs on the other worker
-@pytest.mark.parametrize("name", [n for n in zoo.entry_names() if not legged(n)])
+# the legged agents' entries (long episodes) are in test_zoo_legged.py
+@pytest.mark.parametrize("name", [n for n in zoo.entry_names() if configs.family_key(n.split("/")[0]) != "legged"])
 def test_zoo_entry_reevaluates_to_its_recorded_check(name):
   recorded, fresh = zoo.recheck(name)
   assert not zoo.within_noise(recorded, fresh), f"{name}: {'; '.join(zoo.within_noise(recorded, fresh))}"
