@@ -309,10 +309,7 @@ def test_results_zoo_section_names_every_committed_entry_and_retires_only_absent
 
 
 def test_every_check_replays_as_many_episodes_as_an_export_would_record():
-  from hdt.envs.robot import agent_spec
   from hdt.transfer import checkpoint as ckpt
   for info in zoo.entries():
-    meta = ckpt.load_meta(names.ZOO_DIR / info["name"])
-    legged_hl = meta["level"] == "high" and agent_spec(meta["agent"]).legged
-    want = zoo.CHECK_EPISODES_LEGGED_HL if legged_hl else zoo.CHECK_EPISODES
+    want = zoo.check_episodes(ckpt.load_meta(names.ZOO_DIR / info["name"]))
     assert info["check"]["episodes"] == want, f"{info['name']}: re-record with zoo.reevaluate(name, reason, check_only=True)"

@@ -57,11 +57,15 @@ def _plain(x):
   return x.tolist() if hasattr(x, "tolist") else x
 
 
+def check_episodes(meta: dict) -> int:
+  """Episodes per seed of the check of an entry with checkpoint metadata ``meta``."""
+  legged_hl = meta.get("level") == "high" and agent_spec(meta["agent"]).legged
+  return CHECK_EPISODES_LEGGED_HL if legged_hl else CHECK_EPISODES
+
+
 def _check(entry: str, low: str | None, task: str, task_kw: dict) -> dict:
   """The check of ``entry`` (zoo:NAME, or an entry's directory): its episodes, key and result."""
-  meta = ckpt.load_meta(Path(resolve(str(entry))))
-  legged_hl = meta.get("level") == "high" and agent_spec(meta["agent"]).legged
-  episodes = CHECK_EPISODES_LEGGED_HL if legged_hl else CHECK_EPISODES
+  episodes = check_episodes(ckpt.load_meta(Path(resolve(str(entry)))))
   result = _evaluate(entry, low, task, episodes, CHECK_KEY, **task_kw)
   return dict(episodes=episodes, key=CHECK_KEY, result=result)
 
