@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hdt import report
 from hdt.agents import discriminator as disc_lib
 from hdt.agents import train as sac_train
 from hdt.agents.discriminator import DiscConfig
@@ -96,6 +97,9 @@ def resumed(tmp_path_factory):
     train(out, save_every=HALF, progress=crash_at_half)
   info = ckpt.load_state_info(out)
   assert info["env_steps"] == HALF and not (out / "seed_0").exists()
+  # its curves so far are readable (hdt.report, experiments/studies/curves.py) before it finishes
+  steps, _ = report.read_eval_curves(out)["eval/return"]
+  assert 0 < steps.max() <= HALF
   return train(out, resume=True, save_every=HALF)
 
 

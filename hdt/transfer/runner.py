@@ -100,7 +100,8 @@ class RunOptions:
     ``config.total_env_steps`` than the saved run's extends it, a finished run too (not for stages
     with plug-ins, whose schedules scale with the budget).
   save_every: env steps between saves of the resumable state ``out/state`` (whole TrainState and
-    history, written atomically); default about every 10% of training; always saved at the end.
+    history, written atomically, with ``metrics.csv`` so far); default about every 10% of training;
+    always saved at the end.
   overwrite: replace an existing run in ``out`` as a whole (without it, an existing run is refused;
     a directory that is not an hdt run is always refused, see :mod:`hdt.transfer.rundir`).
   progress: progress(total, quiet, label) -> fn(env_steps, metrics), called after every chunk;
@@ -211,6 +212,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
             if run_dir is not None:
               ckpt.save_state(run_dir, part(ts, p), part(hist, p), dict(infos[p], env_steps=step),
                               None if best is None else part(best, p))
+              write_metrics_csv(run_dir / "metrics.csv", part(hist, p), seeds)  # curves while it runs
         with interrupt.deferred():
           sharding.on_writer(save, f"saving the training state at env step {step}")
       interrupt.raise_if_interrupted()
