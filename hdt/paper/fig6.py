@@ -17,7 +17,8 @@ PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 
                             "scratch": "ant/waypoint_200k"}),
           "ant_maze_end": ("ant", "maze", (("goal", "end"),), "Ant Maze End (success)", ".30 ± .08", {}),
           "ant_maze_sample": ("ant", "maze", (("goal", "sample"),), "Ant Maze Sample (success)", ".62 ± .04",
-                              {"finetune_kl": "ant/maze_sample_ft_kl_from_pm_200k", "scratch": "ant/maze_200k"}),
+                              {"finetune_kl": "ant/maze_sample_ft_kl_from_pm_200k",
+                               "finetune": "ant/maze_sample_ft_from_pm_200k", "scratch": "ant/maze_200k"}),
           "quadruped_maze_sample": ("quadruped", "maze", (("goal", "sample"),), "Quadruped Maze Sample (success)",
                                     ".78 ± .08", {})}
 # What the paper says of the curves (its numbers are curves only)
