@@ -541,6 +541,7 @@ def test_ctrl_c_or_sigterm_saves_the_chunk_under_way_and_exits_with_a_resume_hin
   assert len(lines) == 1 and "Traceback" not in rest, rest
   assert lines[0].startswith("hdt: interrupted;") and "--resume" in lines[0] and str(out) in lines[0]
   assert ckpt.has_state(out) and not list(out.glob(".*.tmp")) and "Failed to import" not in rest
+  assert not (out / "meta.json").exists() and (out / "metrics.csv").exists()  # unfinished, its curves so far kept
   assert ckpt.load_state_info(out)["env_steps"] >= at and f"({ckpt.load_state_info(out)['env_steps']} env steps)" in lines[0]
 
 
