@@ -882,6 +882,8 @@ def test_a_ctrl_c_a_library_swallowed_still_stops_the_run(tmp_path):
   """A KeyboardInterrupt raised where it cannot propagate (JAX's gc callback prints "Exception ignored"
   and goes on) is remembered: the run stops before training, its empty directory removed."""
   previous = signal.getsignal(signal.SIGINT)
+  # as at a terminal: a suite started as a background job (nohup ... &) inherits SIGINT ignored
+  signal.signal(signal.SIGINT, signal.default_int_handler)
   interrupt.catch()
   try:
     try:
