@@ -5,14 +5,14 @@ import json
 
 import numpy as np
 import pytest
+import zoo_entries
 
 from hdt.transfer import configs
 from hdt.transfer import evaluate as ev
 from hdt.transfer import names, zoo
 
 
-# the legged agents' entries (long episodes) are in test_zoo_legged.py
-@pytest.mark.parametrize("name", [n for n in zoo.entry_names() if configs.family_key(n.split("/")[0]) != "legged"])
+@pytest.mark.parametrize("name", zoo_entries.entries(legged=False))  # the legged ones: test_zoo_legged.py
 def test_zoo_entry_reevaluates_to_its_recorded_check(name):
   recorded, fresh = zoo.recheck(name)
   assert not zoo.within_noise(recorded, fresh), f"{name}: {'; '.join(zoo.within_noise(recorded, fresh))}"
