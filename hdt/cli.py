@@ -338,6 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
   zo.add_argument("--episodes", type=int, default=100, help="export: evaluation episodes per seed")
   zo.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="export: task options")
   zo.add_argument("--overwrite", action="store_true", help="export: replace an existing entry")
+  zo.add_argument("--keep-sac", action="store_true",
+                  help="export of an HL that finetuning starts from: keep its whole final SAC, not its policy only")
 
   q = sub.add_parser("quickstart", help="PM LL + HL on Waypoint in minutes, then zero-shot transfer tables with zoo policies",
                      formatter_class=fmt)
@@ -747,7 +749,7 @@ def cmd_zoo(args) -> int:
   if args.episodes <= 0:
     raise CLIError(f"--episodes {args.episodes}: the entry's evaluation needs a positive number of episodes")
   dest = zoo.export(args.run, args.name, args.command, low=args.low, task=args.task, episodes=args.episodes,
-                    overwrite=args.overwrite, **_key_values(args.set, "--set"))
+                    overwrite=args.overwrite, keep_sac=args.keep_sac, **_key_values(args.set, "--set"))
   print(f"exported {args.run} to {dest} (zoo:{args.name})")
   return 0
 

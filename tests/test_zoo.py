@@ -36,12 +36,9 @@ def _as_exported_before_slimming(run, zoo_dir):
   import json
   from pathlib import Path
 
-  import orbax.checkpoint as ocp
-
   from hdt.transfer import checkpoint as ckpt
-  final = ocp.PyTreeCheckpointer().restore((Path(run) / "seed_0/params").resolve())
-  ocp.PyTreeCheckpointer().save((zoo_dir / "t/low/seed_0/params").resolve(),
-                                {k: v for k, v in final.items() if k in zoo.POLICY_KEYS})
+  final = ckpt.restore_params(Path(run) / "seed_0/params")
+  ckpt.orbax_save((zoo_dir / "t/low/seed_0/params").resolve(), {k: v for k, v in final.items() if k in zoo.POLICY_KEYS})
   old_hash = ckpt.content_hash("zoo:t/low", 0)
   info = json.loads((zoo_dir / "t/low/zoo.json").read_text())
   info["slim"][0]["sha256"] = old_hash
@@ -51,35 +48,47 @@ def _as_exported_before_slimming(run, zoo_dir):
 
 def _break_first_layer(zoo_dir, shuffle: bool):
   """Changes the first layer of zoo entry t/low's LL policy (a retrained or broken checkpoint)."""
-  import shutil
-
-  import orbax.checkpoint as ocp
+  from hdt.transfer import checkpoint as ckpt
   d = zoo_dir / "t/low/seed_0/best/params"
-  params = ocp.PyTreeCheckpointer().restore(d.resolve())
+  params = ckpt.restore_params(d)
   k = params["policy"]["params"]["mlp"]["hidden_0"]["kernel"]
   params["policy"]["params"]["mlp"]["hidden_0"]["kernel"] = (k[:, ::-1] if shuffle else k) * 3.0
-  shutil.rmtree(d)
-  ocp.PyTreeCheckpointer().save(d.resolve(), params)
+  ckpt.pack(d, params)
 
 
 def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(point_low, point_high,
                                                                                 tmp_path, monkeypatch):
   import json
 
-  import orbax.checkpoint as ocp
-
   from hdt.transfer import checkpoint as ckpt
+  from hdt.transfer import finetune
   monkeypatch.setattr(names, "ZOO_DIR", tmp_path / "zoo")
   run = point_low.run_dir if hasattr(point_low, "run_dir") else point_low
   high = point_high.run_dir if hasattr(point_high, "run_dir") else point_high
   zoo.export(run, "t/low", "test", episodes=4)
   zoo.export(high, "t/high", "test", low="zoo:t/low", episodes=4)
-  keys = lambda sub: set(ocp.PyTreeCheckpointer().restore((tmp_path / "zoo" / sub).resolve()))
-  # the LL keeps its best policy only; the HL its whole final SAC and its best policy (the KL reference)
-  assert not (tmp_path / "zoo/t/low/seed_0/params").exists()
+  zoo.export(high, "t/high_sac", "test", low="zoo:t/low", episodes=4, keep_sac=True)
+  keys = lambda sub: set(ckpt.restore_params(tmp_path / "zoo" / sub))
+  # one file per parameter set: the LL keeps its best policy only, the HL its final policy (what its
+  # numbers are of), or with keep_sac its whole final SAC and its best policy (the KL reference)
+  files = lambda entry: sorted(str(p.relative_to(tmp_path / "zoo" / entry)) for p in (tmp_path / "zoo" / entry).rglob("*")
+                               if p.is_file() and not p.name.startswith("."))
+  assert files("t/low") == ["config.json", "curves.csv", "meta.json", "seed_0/best/params.msgpack",
+                            "seed_0/meta.json", "zoo.json"]
   assert keys("t/low/seed_0/best/params") <= set(zoo.POLICY_KEYS)
-  assert {"policy", "q", "target_q"} <= keys("t/high/seed_0/params")
-  assert keys("t/high/seed_0/best/params") <= set(zoo.POLICY_KEYS)
+  assert "seed_0/params.msgpack" in files("t/high") and not any("best/" in f for f in files("t/high"))
+  assert keys("t/high/seed_0/params") <= set(zoo.POLICY_KEYS)
+  assert {"policy", "q", "target_q"} <= keys("t/high_sac/seed_0/params")
+  assert keys("t/high_sac/seed_0/best/params") <= set(zoo.POLICY_KEYS)
+  with pytest.raises(ValueError, match="low level: keep_sac"):
+    zoo.export(run, "t/low_sac", "test", episodes=4, keep_sac=True)
+  # both HL entries evaluate as the run's final parameters did; finetuning starts only from the whole SAC
+  ref = ev.evaluate(ev.compose(high, "zoo:t/low"), episodes=4, key=3)["per_seed"]["return"].tolist()
+  for entry in ("zoo:t/high", "zoo:t/high_sac"):
+    assert ev.evaluate(ev.compose(entry, "zoo:t/low"), episodes=4, key=3)["per_seed"]["return"].tolist() == ref
+  finetune.start_plugin(finetune.load_high_sac("zoo:t/high_sac")[0], None, "zoo:t/high_sac")
+  with pytest.raises(ValueError, match="keeps only its policy .*--keep-sac"):
+    finetune.start_plugin(finetune.load_high_sac("zoo:t/high")[0], None, "zoo:t/high")
   # the slim LL evaluates as the full one's best parameters did, whichever set is asked for, and says
   # so; the HL trained over the full LL composes with it
   full = ev.evaluate(ev.load_policy(run, "best"), episodes=4, key=3)
@@ -160,7 +169,7 @@ def test_an_hl_over_a_zoo_ll_whose_seed_was_replaced_is_refused(zoo_copy, tmp_pa
   before = tree()
   for damage in ("replaced", "garbage bytes"):
     if damage == "garbage bytes":  # a damaged data file of the HL itself
-      data = next(p for p in (zoo_copy / "point" / "waypoint" / "seed_0").rglob("*") if p.parent.name == "d")
+      data = zoo_copy / "point" / "waypoint" / "seed_0" / "params.msgpack"
       data.write_bytes(b"\x00garbage" * 8)
       before = tree()
     assert main(["eval", "--high", "zoo:point/waypoint", "--low", "zoo:point/low", "--episodes", "1",
@@ -170,45 +179,53 @@ def test_an_hl_over_a_zoo_ll_whose_seed_was_replaced_is_refused(zoo_copy, tmp_pa
     assert tree() == before and not (tmp_path / "ev").exists()
 
 
-def _as_exported_with_machine_paths(zoo_dir, name: str) -> dict:
-  """Makes zoo entry ``name`` look as exported while orbax wrote the exporting machine's path into its
-  commit markers, with the hashes such an export recorded; returns {seed or None: hash}."""
+def _as_exported_by_an_older_hdt(zoo_dir, name: str) -> dict:
+  """Makes zoo entry ``name`` look as an older hdt exported it: orbax directories, their commit markers
+  naming the exporting machine's path, and the hashes such an export recorded; returns {seed or None: hash}."""
   from hdt.transfer import checkpoint as ckpt
   entry = zoo_dir / name
-  for m in entry.rglob(names.ORBAX_MARKER):
-    m.write_text(f"Checkpoint commit was successful to /home/someone/hdt/zoo/.{name}.tmp/{m.parent.name}")
+  for f in list(entry.rglob("*" + ckpt.PACKED)):
+    d = f.with_name(f.name[:-len(ckpt.PACKED)])
+    ckpt.orbax_save(d.resolve(), ckpt.restore_params(d))
+    f.unlink()
+    (d / names.ORBAX_MARKER).write_text(f"Checkpoint commit was successful to /home/someone/hdt/zoo/.{name}.tmp/{d.name}")
   seeds = ckpt.list_seeds(entry)
   hashes = {s: ckpt.content_hash(entry, s) for s in seeds}
   info = json.loads((entry / "zoo.json").read_text())
-  for s in info.get("slim") or []:
-    s["sha256"] = hashes[s["seed"]]
+  for s in info.get("slim") or []:  # the names it had before stay its names
+    s.update(earlier_sha256=[*s["earlier_sha256"], s["sha256"]], sha256=hashes[s["seed"]])
   info["seed_sha256"] = [hashes[s] for s in seeds]
+  info["earlier_entry_sha256"] = [*info["earlier_entry_sha256"], info["entry_sha256"]]
+  info["entry_sha256"] = ckpt.content_hash(entry)
   (entry / "zoo.json").write_text(json.dumps(info))
   ckpt.record_seed_hashes(entry)
   return {**hashes, None: ckpt.content_hash(entry)}
 
 
-def test_checkpoints_hold_no_machine_path_and_scrubbing_an_old_entry_keeps_what_depends_on_it(zoo_copy, tmp_path):
+def test_repacking_an_entry_an_older_hdt_exported_keeps_what_depends_on_it(zoo_copy, tmp_path):
   from hdt.transfer import checkpoint as ckpt
   # a checkpoint written today names no directory in its commit marker
   ckpt.save(tmp_path / "run", 0, {"w": np.ones(3, np.float32)}, dict(level="low"))
   markers = list((tmp_path / "run").rglob(names.ORBAX_MARKER))
   assert markers and all(m.read_text() == names.MARKER_TEXT for m in markers)
-  # an entry exported with paths in its markers, an HL over it that recorded its hash, and a run
-  # that recorded the HL's whole hash (a finetuning run does)
-  low = _as_exported_with_machine_paths(zoo_copy, "point/low")
-  high = _as_exported_with_machine_paths(zoo_copy, "point/waypoint")
+  # entries as an older hdt exported them, an HL over the LL that recorded its hash, and a run that
+  # recorded the HL's whole hash (a finetuning run does)
+  low = _as_exported_by_an_older_hdt(zoo_copy, "point/low")
+  high = _as_exported_by_an_older_hdt(zoo_copy, "point/waypoint")
   info_path = zoo_copy / "point" / "waypoint" / "zoo.json"
   info_path.write_text(json.dumps(dict(json.loads(info_path.read_text()), low_sha256=low[0])))
-  ev.compose("zoo:point/waypoint", "zoo:point/low")
+  recorded = {n: zoo.recheck(n)[1] for n in ("point/low", "point/waypoint")}
   for name in ("point/low", "point/waypoint"):
-    zoo.scrub_markers(name)
-    assert all(m.read_text() == names.MARKER_TEXT for m in (zoo_copy / name).rglob(names.ORBAX_MARKER))
+    zoo.reslim(name)
+    left = sorted(p.name for p in (zoo_copy / name).rglob("*") if p.is_file() and p.parent.name != name.split("/")[1])
+    assert set(left) == {"meta.json", "params.msgpack"}, left  # one file per parameter set, no orbax marker
   assert ckpt.content_hash("zoo:point/low", 0) != low[0]
-  # the files changed, their parameters did not: the HL still composes, its old hashes still name it
+  # the files changed, their parameters did not: the HL still composes, evaluates as before, its old hashes name it
   ev.compose("zoo:point/waypoint", "zoo:point/low")
+  for name, before in recorded.items():
+    assert zoo.recheck(name)[1]["per_seed"] == before["per_seed"]
   assert low[0] in names.hash_aliases("zoo:point/low", 0) and high[None] in names.hash_aliases("zoo:point/waypoint", None)
-  assert not zoo.within_noise(*zoo.recheck("point/waypoint"))
+  assert zoo.keeps(json.loads(info_path.read_text())) == "sac"  # it kept what finetuning starts from
   # a finetuning run that recorded the HL's old whole hash resumes (runner's check of what it depends on)
   from hdt.transfer import runner
   rec = lambda h: {"meta": {"finetuned_from": {"path": "zoo:point/waypoint", "sha256": h}}}
@@ -216,8 +233,8 @@ def test_checkpoints_hold_no_machine_path_and_scrubbing_an_old_entry_keeps_what_
   assert runner._same_low_as_slim_copy(rec(high[None]), rec(now)) == rec(now)
   assert runner._same_low_as_slim_copy(rec("0" * 64), rec(now)) == rec("0" * 64)  # another HL's: refused later
   # and only while they are unchanged: another edit drops the aliases
-  m = next((zoo_copy / "point/waypoint").rglob(names.ORBAX_MARKER))
-  m.write_text("edited")
+  m = zoo_copy / "point/waypoint/seed_0/meta.json"
+  m.write_text(json.dumps(dict(json.loads(m.read_text()), edited=True)))
   assert names.hash_aliases("zoo:point/waypoint", None) == {ckpt.content_hash("zoo:point/waypoint")}
 
 
@@ -234,20 +251,30 @@ def test_a_failed_export_leaves_nothing_in_the_zoo(zoo_copy, monkeypatch):
 
 
 def test_committed_zoo_stays_a_few_megabytes():
-  """The zoo is committed: it keeps what is loaded from it (zoo.py) and no more."""
-  size = lambda d: sum(p.stat().st_size for p in d.rglob("*") if p.is_file())
-  # per entry (3 seeds): an LL's policies ≈ 0.2 MB, an HL's SAC ≈ 0.4 MB, the legged LLs ≈ 0.55 MB; a
-  # replay buffer, an Adam state or an LL's final SAC kept by mistake is more than 0.8 MB. The bound
-  # (README, "Results") was 10 MB until the navigation half's legged entries, 15 MB until the
-  # quadruped's HL and the ant's LL on steps.
-  total = size(names.ZOO_DIR) / 1e6
-  assert total < 20, f"zoo/ holds {total:.1f} MB: too many entries to commit"
+  """The zoo is committed: it keeps what is loaded from it (zoo.py) and no more, one file per set."""
+  from hdt.transfer import checkpoint as ckpt
+  disk = lambda d: sum(p.stat().st_blocks * 512 for p in d.rglob("*") if p.is_file())  # what du counts
+  # per entry: an HL's policies ≈ 0.06 MB, an arm LL's ≈ 0.2 MB, a legged LL's ≈ 0.4 MB; a replay
+  # buffer, an Adam state or critics kept by mistake are more. The bound is README's ("The model zoo").
+  total = disk(names.ZOO_DIR) / 1e6
+  assert total < 15, f"zoo/ takes {total:.1f} MB on disk: too many entries to commit"
   for info in zoo.entries():
-    mb = size(names.ZOO_DIR / info["name"]) / 1e6
-    assert mb < 0.8, f"zoo entry {info['name']} holds {mb:.2f} MB; export policies only (zoo.export slims them)"
-    if info["level"] == "low":  # one set per seed: the best, or the final of an LL that kept no best
-      for seed in (names.ZOO_DIR / info["name"]).glob("seed_*"):
-        assert (seed / "params").is_dir() != (seed / "best/params").is_dir(), f"{seed} keeps both"
+    entry = names.ZOO_DIR / info["name"]
+    mb = disk(entry) / 1e6
+    assert mb < 0.6, f"zoo entry {info['name']} takes {mb:.2f} MB; export policies only (zoo.export slims them)"
+    assert not list(entry.rglob(names.ORBAX_MARKER)), f"{entry} keeps orbax directories: zoo.reslim packs them"
+    for seed in entry.glob("seed_*"):
+      final, best = ckpt.has_params(seed / "params"), ckpt.has_params(seed / "best/params")
+      assert final or best, seed
+      assert not (final and best) or zoo.keeps(info) == "sac", f"{seed} keeps both sets"
+
+
+def test_the_hls_finetuning_starts_from_keep_their_sac_and_no_other_entry_does():
+  from hdt import paper
+  from hdt.paper.runs import Finetune
+  sources = {c.high.high.zoo for name in paper.NAMES for t in [paper.load(name)] for part in t.parts(t.presets["paper"]) for c in part.cells
+             if isinstance(c.high, Finetune)}
+  assert "point/maze" in sources and {i["name"] for i in zoo.entries() if zoo.keeps(i) == "sac"} == sources
 
 
 def test_every_committed_entry_records_the_content_hash_of_each_seed():

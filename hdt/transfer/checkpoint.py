@@ -8,7 +8,9 @@ keeps only these) and its own ``meta.json``, and
 observation statistics are saved beside the parameters (``params["obs_norm"]`` next to "policy" and
 "q"); checkpoints written when they lived inside the policy and critics are split on load. Each of these
 directories is written under a temporary name and renamed into place, so a save killed at any point
-(tested with SIGKILL) leaves the previous version loadable. Metadata carries ``format_version``;
+(tested with SIGKILL) leaves the previous version loadable. A zoo entry keeps each parameter set
+packed into one file (``params.msgpack``: :func:`pack`) instead of orbax's directory of a dozen small
+files, which is what a git checkout holds. Metadata carries ``format_version``;
 another version, damaged files, or a checkpoint of the wrong kind raise :class:`CheckpointError`
 saying what to do.
 """
@@ -28,6 +30,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 import orbax.checkpoint as ocp
+from flax import serialization
 
 from hdt import atomic
 from hdt.agents import normalizer, sharding
@@ -115,6 +118,44 @@ def orbax_save(path: Path, tree) -> None:
 def _orbax_restore(path: Path):
   with _quiet_orbax():
     return _checkpointer().restore(path)
+
+
+PACKED = ".msgpack"
+
+
+def packed(path: Path) -> Path:
+  """The one-file form of the orbax parameter directory ``path`` (``params`` -> ``params.msgpack``)."""
+  return Path(path).with_name(Path(path).name + PACKED)
+
+
+def has_params(path: Path) -> bool:
+  """Whether the parameter set ``path`` (``seed_i/params`` or ``seed_i/best/params``) exists, in either form."""
+  return Path(path).is_dir() or packed(path).is_file()
+
+
+def pack(path: Path, tree=None) -> Path:
+  """Writes the parameter set ``path`` as one flax-msgpack file (``tree``; default, what ``path`` holds
+  now), checked to restore to the same arrays (names, dtypes, values), then removes its orbax
+  directory if it had one; returns the file."""
+  tree = restore_params(path) if tree is None else tree
+  data = serialization.msgpack_serialize(tree)
+  back = serialization.msgpack_restore(data)
+  same = jax.tree.structure(tree) == jax.tree.structure(back) and all(
+      np.asarray(a).dtype == np.asarray(b).dtype and np.array_equal(a, b, equal_nan=True)
+      for a, b in zip(jax.tree.leaves(tree), jax.tree.leaves(back)))
+  if not same:
+    raise CheckpointError(f"{path} does not survive packing into one file unchanged; keep it as it is")
+  out = atomic.write_bytes(packed(path), data)
+  atomic.remove(Path(path))
+  return out
+
+
+def restore_params(path: Path):
+  """The parameter set ``path``: its packed file if there is one, else its orbax directory."""
+  f = packed(path)
+  if f.is_file():
+    return jax.tree.map(np.array, serialization.msgpack_restore(f.read_bytes()))
+  return _orbax_restore(Path(path).resolve())
 
 
 WHICH = ("final", "best")
@@ -246,7 +287,7 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
   """Returns (params, meta) of one seed: its final parameters, or with ``which="best"`` those of
   its best periodic evaluation. As the authors' loader, "best" falls back to the final parameters
   of a checkpoint that has none; a zoo entry keeps one of the two (zoo.py), which either name then
-  loads. ``meta["params"]`` says which were loaded and ``meta["params_env_steps"]`` after how many
+  loads; an HL entry exported policy-only keeps its final ones. ``meta["params"]`` says which were loaded and ``meta["params_env_steps"]`` after how many
   env steps."""
   run_dir = zoo_path(run_dir)
   check_which(which)
@@ -255,11 +296,12 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
   d = existing_seed_dir(Path(run_dir).resolve(), seed_index)
   has_best = isinstance(meta.get("best"), dict)
   use = "best" if which == "best" and has_best else "final"
-  if use == "final" and has_best and not (d / "params").exists() and (Path(run_dir) / "zoo.json").is_file():
-    use = "best"  # a zoo LL keeps only the parameters HLs compose with
-  path = d / "params" if use == "final" else d / "best" / "params"
+  where = {"final": d / "params", "best": d / "best" / "params"}
+  if not has_params(where[use]) and (Path(run_dir) / "zoo.json").is_file():
+    use = {"final": "best", "best": "final"}[use]  # a zoo entry keeps the set its numbers are of
+  path = where[use]
   try:
-    params = _orbax_restore(path)
+    params = restore_params(path)
   except Exception as e:  # orbax raises several types for damaged files
     raise CheckpointError(f"corrupt checkpoint parameters in {path} ({type(e).__name__}: "
                           f"{e}); re-run training, or restore the directory from a backup") from e

@@ -108,6 +108,10 @@ def start_from_a(agent, a_params, config, high, init: str = "sac"):
 def start_plugin(a_params, config, high, init: str = "sac") -> Plugin:
   """A plug-in whose init starts the seed of index ``i`` from A's seed ``i % n_A`` (:func:`start_from_a`;
   ``a_params``: A's parameters stacked over its n_A seeds)."""
+  if init == "sac" and "q" not in a_params:
+    raise ckpt.CheckpointError(f"{high} keeps only its policy (a policy-only zoo entry), and finetuning starts "
+                               f"from A's whole SAC: finetune from its run directory, or re-export it with "
+                               f"hdt zoo export --keep-sac")
   missing = [k for k in ("target_q", "log_alpha") if k not in a_params]
   if init == "sac" and missing:
     print(f"warning: {high} has no saved {' or '.join(missing)} (an HL saved before they were kept): "

@@ -145,9 +145,8 @@ def recorded_low_hash(high) -> str | None:
 
 def hash_aliases(low, seed: int | None) -> set[str]:
   """Content hashes that name seed ``seed`` of ``low`` (every seed: None) as it is now: its own, plus,
-  for a zoo entry whose files are unchanged since it was slimmed or its commit markers scrubbed, that
-  of the full run it was exported from and of its earlier zoo copies (``hdt.transfer.zoo.reslim``,
-  ``hdt.transfer.zoo.scrub_markers``)."""
+  for a zoo entry whose files are unchanged since it was last slimmed and packed, that
+  of the full run it was exported from and of its earlier zoo copies (``hdt.transfer.zoo.reslim``)."""
   now = content_hash(low, seed)
   info = (info_of(low) or {}) if str(low).startswith(PREFIX) else {}
   if seed is None:

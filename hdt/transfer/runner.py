@@ -426,7 +426,7 @@ def _with_legacy_fields(saved: dict, legacy_meta: dict[str, dict], requested_con
 def _same_low_as_slim_copy(saved: dict, info: dict) -> dict:
   """``saved`` with the hashes of ``info`` where a checkpoint it recorded (the HL's ``low``, the aligned
   LL's imitated ``aligned_to``, a finetuned HL's A ``finetuned_from``, all of whose seeds it hashes) is
-  now a slim or scrubbed zoo copy of the same parameters (:func:`hdt.transfer.names.hash_aliases`):
+  now a re-slimmed zoo copy of the same parameters (:func:`hdt.transfer.names.hash_aliases`):
   slimming an entry is not retraining it."""
   meta = dict(saved.get("meta") or {})
   for key in ("low", "aligned_to", "finetuned_from"):

@@ -6,11 +6,12 @@ resumable ``state/``) plus ``zoo.json``: the command that trained it, its budget
 the content hash of each seed's checkpoint (checked whenever the entry is loaded; an HL's also of the
 LL seed it composes with) and a small deterministic re-evaluation (``check``) that tests replay within
 noise (:func:`within_noise`: float differences between CPUs can flip a contact-rich episode). Names
-are names, not paths: one or two parts of ``[a-z0-9_]``, and ``zoo:NAME`` never leaves ``zoo/``. An LL entry keeps only the policy
-(and observation statistics) of its best periodic evaluation: what HLs compose with and alignment
-imitates (nothing loads an LL's critics; ``hdt eval --policy`` of a zoo LL loads these too). An HL
-entry keeps its whole final SAC, which KL finetuning starts from (the authors'
-finetune_high_level_kl.py), and the policy of its best evaluation, which the KL ties to.
+are names, not paths: one or two parts of ``[a-z0-9_]``, and ``zoo:NAME`` never leaves ``zoo/``.
+Each seed keeps one set of parameters, packed into one file: an LL the policy (and observation
+statistics) of its best periodic evaluation, which HLs compose with and alignment imitates; an HL the
+final policy its numbers are of. An HL that finetuning starts from is exported with ``keep_sac``: its
+whole final SAC (the authors' finetune_high_level_kl.py loads A's whole model) and the policy of its
+best evaluation, which the KL ties to.
 """
 
 from __future__ import annotations
@@ -76,9 +77,10 @@ def _numbers(entry: str, low: str | None, task: str, episodes: int, task_kw: dic
 
 
 def export(run: str | Path, name: str, command: str, low: str | None = None, task: str | None = None,
-           episodes: int = 100, overwrite: bool = False, **task_kw) -> Path:
+           episodes: int = 100, overwrite: bool = False, keep_sac: bool = False, **task_kw) -> Path:
   """Copies the policy of ``run`` into ``zoo/NAME`` and records its numbers. An HL needs ``low`` (a zoo
-  name, which its metadata then points to) and is evaluated on ``task`` (default: its own). Every
+  name, which its metadata then points to) and is evaluated on ``task`` (default: its own); with
+  ``keep_sac`` it keeps its whole final SAC, for finetuning to start from (:func:`_slim`). Every
   argument is checked before anything is written; the entry is built in a hidden directory and moved
   into place in one rename (hdt.transfer.rundir.install), so a failed export leaves no trace."""
   check_name(name)
@@ -87,6 +89,9 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
                    f"episodes per seed, e.g. 100")
   run = Path(resolve(str(run)))
   meta = ckpt.load_meta(run)  # a readable checkpoint of this hdt's format
+  if keep_sac and meta.get("level") != "high":
+    raise ZooError(f"{run} is a low level: keep_sac (--keep-sac) is for an HL that finetuning starts from; "
+                   f"an LL entry keeps its policy")
   if meta.get("level") == "high":
     if not (isinstance(low, str) and low.startswith(PREFIX)):
       raise ZooError(f"{run} is a high level: export its LL first and pass it as low='zoo:NAME' (CLI: --low zoo:NAME)")
@@ -112,11 +117,11 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
         if isinstance(m.get("low"), dict):
           m["low"] = dict(m["low"], path=low, sha256=m["low"].get("sha256") or low_hash)
           ckpt.write_json_atomic(mp, m)
-    slimmed = _slim(tmp, meta["level"])
+    slimmed = _slim(tmp, meta["level"], keep_sac)
     ckpt.record_seed_hashes(tmp)
     (tmp / "zoo.json").write_text("{}")  # an entry for the evaluations below (as ckpt.load sees it)
     full, check = _numbers(str(tmp), low, task, episodes, task_kw)
-    _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash)
+    _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash, keep_sac)
     return rundir.install(tmp, dest, overwrite=overwrite, reads={"exported": run}, zoo_ok=True, what="name")
   except BaseException:
     atomic.remove(tmp)  # nothing half-written is left in zoo/
@@ -143,85 +148,82 @@ def _keep_eval_rows(metrics: Path, out: Path) -> None:
     atomic.write_text(out, text.getvalue())
 
 
-POLICY_KEYS = ("policy", normalizer.KEY)  # what an LL entry keeps, and an HL entry of its best (the KL reference)
+POLICY_KEYS = ("policy", normalizer.KEY)  # what a policy-only entry keeps, and an HL entry of its best (the KL reference)
 
 
-def _slim(entry: Path, level: str) -> list[dict]:
-  """Drops from the copy ``entry`` (in place) what nothing loads from a zoo entry: an LL's final
-  parameters when it has best ones, and all but ``POLICY_KEYS`` of an LL's and of any best. Returns per
-  seed the content hash before and after, so that an HL trained over the full LL still composes with
-  the slim copy (:func:`hdt.transfer.names.hash_aliases`)."""
+def keeps(info: dict) -> str:
+  """What an entry (its zoo.json) keeps: "sac" (an HL's whole final SAC: what finetuning starts from) or
+  "policy". HLs exported before the choice kept their SAC."""
+  return info.get("keeps", "sac" if info.get("level") == "high" else "policy")
+
+
+def _slim(entry: Path, level: str, keep_sac: bool = False) -> list[dict]:
+  """Drops from the copy ``entry`` (in place) what nothing loads from a zoo entry, and packs each
+  parameter set left into one file (:func:`hdt.transfer.checkpoint.pack`). An LL keeps the policy of
+  its best evaluation (of its final parameters if it has no best); an HL the policy its numbers are of
+  (its final), or with ``keep_sac`` its whole final SAC and its best policy, which KL finetuning ties
+  to. Returns per seed the content hash before and after, so that what recorded the full run or an
+  earlier copy still composes with this one (:func:`hdt.transfer.names.hash_aliases`)."""
   out = []
   for seed in ckpt.list_seeds(entry):
     before = ckpt.content_hash(entry, seed)
     d = ckpt.seed_dir(entry, seed)
-    best = d / "best" / "params"
-    if level == "low" and best.is_dir() and (d / "params").is_dir():
-      shutil.rmtree(d / "params")
-    for path in (d / "params", best):
-      if path.is_dir() and (level == "low" or path == best):
-        params = ocp.PyTreeCheckpointer().restore(path.resolve())
-        if set(params) <= set(POLICY_KEYS):
-          continue
-        new = path.with_name(path.name + ".slim")
-        ckpt.orbax_save(new.resolve(), {k: v for k, v in params.items() if k in POLICY_KEYS})
-        shutil.rmtree(path)
-        new.rename(path)
-    _scrub_markers(d)
+    final, best = d / "params", d / "best" / "params"
+    drop = (final if level == "low" else None if keep_sac else best.parent)
+    if drop is not None and ckpt.has_params(final) and ckpt.has_params(best):
+      atomic.remove(drop)
+      atomic.remove(ckpt.packed(drop))
+    for path in (final, best):
+      if not ckpt.has_params(path):
+        continue
+      params = ckpt.restore_params(path)
+      keep = (params if level == "high" and keep_sac and path == final
+              else {k: v for k, v in params.items() if k in POLICY_KEYS})
+      if path.is_dir() or set(keep) != set(params):
+        ckpt.pack(path, keep)
     out.append({"seed": seed, "source_sha256": before, "sha256": ckpt.content_hash(entry, seed)})
   return out
 
 
-def _scrub_markers(d: Path) -> bool:
-  return any([names.scrub_marker(m.parent) for m in sorted(d.rglob(names.ORBAX_MARKER))])
-
-
-def scrub_markers(name: str) -> dict:
-  """Rewrites, in place, the commit markers of an entry exported while orbax wrote the exporting
-  machine's path into them (:func:`hdt.transfer.names.scrub_marker`), keeping the hashes it had as
-  aliases, so that runs and HLs recorded over it still compose and resume. Returns the zoo.json."""
+def reslim(name: str, keep_sac: bool | None = None) -> dict:
+  """Applies today's :func:`_slim` to an entry exported before it, in one swap of the whole entry
+  (``keep_sac``: an HL's choice; default, what it keeps now), keeping the hashes it had as aliases,
+  so that HLs and runs recorded over any earlier copy still compose and resume. Returns the new
+  zoo.json; if an LL entry's default parameters changed, re-record its numbers (:func:`reevaluate`)."""
   entry, path = names.ZOO_DIR / check_name(name), names.ZOO_DIR / name / "zoo.json"
   info = json.loads(path.read_text())
-  seeds = ckpt.list_seeds(entry)
-  old_entry, old = ckpt.content_hash(entry), {s: ckpt.content_hash(entry, s) for s in seeds}
-  if not _scrub_markers(entry):
-    return info
-  new = {s: ckpt.content_hash(entry, s) for s in seeds}
-  if info.get("slim"):
-    for s in info["slim"]:
-      s["earlier_sha256"] = sorted(({*s.get("earlier_sha256", []), old[s["seed"]]}
-                                    - {s["source_sha256"], new[s["seed"]]}))
-      s["sha256"] = new[s["seed"]]
-  info["seed_sha256"] = [new[s] for s in seeds]
-  info["entry_sha256"] = ckpt.content_hash(entry)
-  info["earlier_entry_sha256"] = sorted({*info.get("earlier_entry_sha256", []), old_entry} - {info["entry_sha256"]})
-  ckpt.record_seed_hashes(entry)
-  atomic.write_text(path, json.dumps(info, indent=1))  # in its own order: a readable diff
-  return info
-
-
-def reslim(name: str) -> dict:
-  """Applies today's :func:`_slim` to an entry exported before it (in place), keeping the hashes its
-  LL had, so HLs trained over any earlier copy still compose with it. Returns the new zoo.json; an LL
-  entry's numbers must then be re-recorded (:func:`reevaluate`), as its default parameters changed."""
-  entry, path = names.ZOO_DIR / check_name(name), names.ZOO_DIR / name / "zoo.json"
-  info = json.loads(path.read_text())
+  if keep_sac is None:
+    keep_sac = keeps(info) == "sac"
+  if keep_sac and keeps(info) != "sac":
+    raise ZooError(f"zoo entry {name!r} keeps only its policy: re-export it from its run with --keep-sac")
+  old_entry = ckpt.content_hash(entry)
+  earlier_entry = names.hash_aliases(PREFIX + name, None) | {old_entry}
   old = {s["seed"]: s for s in info.get("slim") or []}
-  new = _slim(entry, info["level"])
-  if info["level"] == "low":
+
+  def rewrite(tmp: Path):
+    shutil.copytree(entry, tmp, dirs_exist_ok=True)
+    new = _slim(tmp, info["level"], keep_sac)
     for s in new:
       prev = old.get(s["seed"], {})
-      earlier = [*prev.get("earlier_sha256", []), s["source_sha256"]]
-      s["source_sha256"] = prev.get("source_sha256", s["source_sha256"])
-      s["earlier_sha256"] = sorted(set(earlier) - {s["source_sha256"], s["sha256"]})
+      earlier = {*prev.get("earlier_sha256", []), s["source_sha256"]}
+      if prev.get("sha256") == s["source_sha256"]:  # unchanged since its export: what its run was is still known
+        s["source_sha256"] = prev.get("source_sha256", s["source_sha256"])
+      s["earlier_sha256"] = sorted(earlier - {s["source_sha256"], s["sha256"]})
     info["slim"] = new
-  info["seed_sha256"] = [s["sha256"] for s in new]
-  ckpt.record_seed_hashes(entry)
-  ckpt.write_json_atomic(path, info)
+    info["seed_sha256"] = [s["sha256"] for s in new]
+    if info["level"] == "high":
+      info["keeps"] = "sac" if keep_sac else "policy"
+    ckpt.record_seed_hashes(tmp)
+    info["entry_sha256"] = ckpt.content_hash(tmp)
+    info["earlier_entry_sha256"] = sorted(earlier_entry - {info["entry_sha256"]})
+    ckpt.write_json_atomic(tmp / "zoo.json", info)
+
+  atomic.replace_dir(entry, rewrite)
   return info
 
 
-def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash=None):
+def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash=None,
+                 keep_sac=False):
   sac, slimmed = meta.get("sac", {}), sorted(slimmed, key=lambda s: s["seed"])
   info = dict(name=name, level=meta["level"], agent=meta["agent"], task=task, task_options=task_kw,
               low=low, command=command,
@@ -230,10 +232,12 @@ def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slim
               seeds=[s["seed"] for s in slimmed], evaluation=full, check=check,
               hdt_version=__version__, exported=datetime.date.today().isoformat(),
               seed_sha256=[s["sha256"] for s in slimmed])
-  if meta["level"] == "low":
-    info["slim"] = slimmed
+  info["slim"] = slimmed
+  if meta["level"] == "high":
+    info["keeps"] = "sac" if keep_sac else "policy"
   if low_hash is not None:
     info["low_sha256"] = low_hash
+  info["entry_sha256"] = ckpt.content_hash(tmp)
   atomic.write_text(tmp / "zoo.json", json.dumps(info, indent=1))
 
 
