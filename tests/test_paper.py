@@ -24,7 +24,7 @@ def recipes(table, pr):
 
 def test_the_tables_hold_the_papers_cells():
   shape = {name: [(p.name, len(p.rows), len(p.cols)) for p in t.parts(PRESETS["paper"])] for name, t in TABLES.items()}
-  assert shape["table1"] == [("waypoint", 4, 4), ("maze_end", 4, 2), ("maze_sample", 4, 2), ("push1", 4, 4), ("insert", 3, 3)]
+  assert shape["table1"] == [("waypoint", 5, 5), ("maze_end", 5, 2), ("maze_sample", 5, 2), ("push1", 4, 4), ("insert", 3, 3)]
   assert shape["table2"] == [("waypoint", 3, 2), ("maze_end", 2, 2), ("maze_sample", 2, 2), ("push1", 4, 2),
                              ("push2", 4, 2), ("insert", 1, 2)]
   assert shape["table3"] == [("zero_shot", 2, 2), ("finetuning", 4, 1)]
