@@ -296,6 +296,7 @@ def test_zoo_table_lists_every_entry_with_the_parameters_its_numbers_are_of():
   rows = [r.split(" | ") for r in zoo.table().splitlines()[2:]]
   assert [r[0] for r in rows] == zoo.entry_names()
   assert {r[5] for r in rows if r[1] == "low"} <= {"best", "final"} and {r[5] for r in rows if r[1] == "high"} == {"final"}
+  assert {r[9] for r in rows if r[1] == "low"} == {"policy"} and {r[9] for r in rows if r[1] == "high"} == {"policy", "sac"}
 
 
 def test_an_hl_run_started_over_an_older_zoo_copy_resumes_after_the_entry_is_slimmed(point_low, tmp_path,

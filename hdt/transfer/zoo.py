@@ -289,13 +289,14 @@ def within_noise(recorded: dict, fresh: dict, z: float = 4.0) -> list[str]:
 
 def table() -> str:
   """One line per entry: name, level, agent/task, budget, the parameters its numbers are of (an HL's:
-  over its LL's best), headline numbers (mean ± std over seeds)."""
-  rows = ["name | level | agent | task | budget | params | return | success | seeds",
-          "---|---|---|---|---|---|---|---|---"]
+  over its LL's best), headline numbers (mean ± std over seeds), and what it keeps (:func:`keeps`: "sac"
+  can be finetuned from)."""
+  rows = ["name | level | agent | task | budget | params | return | success | seeds | keeps",
+          "---|---|---|---|---|---|---|---|---|---"]
   for e in entries():
     ev = e["evaluation"]
     succ = f"{ev['success_mean']:.2f} ± {ev['success_std']:.2f}" if "success_mean" in ev else "-"
     rows.append(f"{e['name']} | {e['level']} | {e['agent']} | {e['task']} | {e['budget']['total']} "
                 f"{e['budget']['unit']} | {ev.get('params', '?')} | {ev['return_mean']:.4g} ± {ev['return_std']:.2g} | "
-                f"{succ} | {len(e['seeds'] or [])}")
+                f"{succ} | {len(e['seeds'] or [])} | {keeps(e)}")
   return "\n".join(rows)
