@@ -287,8 +287,8 @@ def load(run_dir: str | Path, seed_index: int = 0, which: str = "final") -> tupl
   """Returns (params, meta) of one seed: its final parameters, or with ``which="best"`` those of
   its best periodic evaluation. As the authors' loader, "best" falls back to the final parameters
   of a checkpoint that has none; a zoo entry keeps one of the two (zoo.py), which either name then
-  loads; an HL entry exported policy-only keeps its final ones. ``meta["params"]`` says which were loaded and ``meta["params_env_steps"]`` after how many
-  env steps."""
+  loads; an HL entry exported policy-only keeps its final ones. ``meta["params"]`` says which were
+  loaded and ``meta["params_env_steps"]`` after how many env steps."""
   run_dir = zoo_path(run_dir)
   check_which(which)
   meta = load_meta(run_dir, seed_index)

@@ -25,7 +25,6 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-import orbax.checkpoint as ocp
 
 from hdt import atomic
 from hdt.agents import normalizer
@@ -196,8 +195,7 @@ def reslim(name: str, keep_sac: bool | None = None) -> dict:
     keep_sac = keeps(info) == "sac"
   if keep_sac and keeps(info) != "sac":
     raise ZooError(f"zoo entry {name!r} keeps only its policy: re-export it from its run with --keep-sac")
-  old_entry = ckpt.content_hash(entry)
-  earlier_entry = names.hash_aliases(PREFIX + name, None) | {old_entry}
+  earlier_entry = names.hash_aliases(PREFIX + name, None)  # its hash now, and those it already stood for
   old = {s["seed"]: s for s in info.get("slim") or []}
 
   def rewrite(tmp: Path):
