@@ -350,3 +350,25 @@ def test_plain_finetuning_keeps_a_s_learning_rate_and_kl_finetuning_takes_the_ta
     assert (cfg.actor_lr, cfg.critic_lr, cfg.alpha_lr) == (a["actor_lr"], a["critic_lr"], a["alpha_lr"]) == (3e-4,) * 3
   else:
     assert cfg.actor_lr == want and cfg.critic_lr == a["critic_lr"]
+
+
+def test_plain_finetuning_extends_its_budget_on_resume_and_kl_finetuning_refuses(pm_runs, tmp_path):
+  """Without the KL plug-in nothing follows the budget, so a finished plain finetuning run resumed with a
+  larger one equals a run of that budget from the start; the KL weight's anneal is a fraction of the
+  budget, so a KL run keeps its own."""
+  root, low, high, high_cfg = pm_runs
+  big = configs.replace(_ft_config(high_cfg), steps_per_chunk=25)  # chunks of 200 env steps
+  small = configs.replace(big, total_env_steps=400)
+  ft = lambda cfg, out, kl=0.0, **kw: finetune_high(
+      high.run_dir, low.run_dir, "waypoint", cfg, spec=FinetuneSpec(kl_weight=kl),
+      options=RunOptions(seeds=1, out=tmp_path / out, quiet=True, **kw))
+  ft(small, "plain")
+  extended, straight = ft(big, "plain", resume=True), ft(big, "straight")
+  assert _leaves_equal(extended.params, straight.params)
+  for k in ("eval/return", "env_steps"):
+    np.testing.assert_array_equal(extended.history[k], straight.history[k])
+  _, m = ckpt.load(extended.run_dir, 0)
+  assert m["anneal_env_steps"] == ckpt.load(straight.run_dir, 0)[1]["anneal_env_steps"]
+  ft(small, "kl", kl=1.0)
+  with pytest.raises(ckpt.CheckpointError, match="resume with --total-env-steps 400"):
+    ft(big, "kl", kl=1.0, resume=True)

@@ -37,6 +37,9 @@ class Plugin:
     ``reward`` see these as ``transitions.extras`` / ``batch.extras`` (and no other plug-in's).
   hyper: {name: default} of the plug-in's vmappable scalars (names unique across plug-ins and
     SWEEPABLE), passed as ``**values`` to update, reward, regularizer and schedule (module docstring).
+  scales_with_budget: its hooks follow schedules that are fractions of the run's budget (an annealed
+    weight or learning rate), so a run with it cannot change its budget on resume; False for a plug-in
+    whose hooks never read the budget (e.g. one that only sets the starting parameters).
   """
 
   name: str
@@ -47,6 +50,7 @@ class Plugin:
   schedule: Callable[[jax.Array], jax.Array] | None = None
   transition_extras: Callable[[Any, Any], Any] | None = None
   hyper: Mapping[str, float] = dataclasses.field(default_factory=dict, hash=False)
+  scales_with_budget: bool = True
 
 
 def values(plugin: Plugin, hyper: Mapping | None) -> dict:

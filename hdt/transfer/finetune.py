@@ -124,7 +124,7 @@ def start_plugin(a_params, config, high, init: str = "sac") -> Plugin:
     a = jax.tree.map(lambda x: x[seed_index % n_a], per_seed)
     return start_from_a(agent, a, config, high, init), {}
 
-  return Plugin(name="start_from_a", init=init_fn)
+  return Plugin(name="start_from_a", init=init_fn, scales_with_budget=False)
 
 
 def check_kl_weight(kl_weight) -> None:
@@ -284,7 +284,9 @@ def finetune_stage(high: str | Path, low: LowRef | str | Path, task: str, config
                 mean_only=bool(spec.mean_only), anneal_frac=float(spec.anneal_frac),
                 anneal_env_steps=float(anneal_steps))
   label = f"finetune {card_a.agent}->{env.env.agent.name} {task} kl_weight={kl_weight:g}"
-  return Stage(env, config, card, label, plugins=tuple(plugins), save_extra=sac_extras)
+  # without the KL plug-in nothing reads the budget: a plain finetuning run extends like any SAC run
+  budget_meta = () if kl_weight > 0 else ("anneal_env_steps",)
+  return Stage(env, config, card, label, plugins=tuple(plugins), save_extra=sac_extras, budget_meta=budget_meta)
 
 
 def _kl_for_points(stage: dict, values: list) -> dict:

@@ -58,6 +58,14 @@ class Stage:
   # value in effect before (e.g. hdt.agents.discriminator.ADDED_FIELDS): a run saved without them
   # resumes under those values, and a request for others is named as a difference
   legacy_meta: dict[str, dict] = dataclasses.field(default_factory=dict)
+  # meta.json fields derived from the budget that nothing trained reads (a plain finetuning's
+  # anneal_env_steps): a run resumed with another budget records the requested values
+  budget_meta: tuple[str, ...] = ()
+
+  @property
+  def extendable(self) -> bool:
+    """Whether a resume may change the budget: no plug-in follows a schedule scaled by it."""
+    return not any(p.scales_with_budget for p in self.plugins)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -98,7 +106,7 @@ class RunOptions:
     a run directory continues that run (writing to ``out``, default the same directory). The
     continued run equals an uninterrupted one exactly (same seeds, same device). A larger
     ``config.total_env_steps`` than the saved run's extends it, a finished run too (not for stages
-    with plug-ins, whose schedules scale with the budget).
+    whose plug-ins follow schedules scaled by the budget: :attr:`Stage.extendable`).
   save_every: env steps between saves of the resumable state ``out/state`` (whole TrainState and
     history, written atomically, with ``metrics.csv`` so far); default about every 10% of training;
     always saved at the end.
@@ -136,7 +144,7 @@ def finished_run(stage: Stage, options: RunOptions = RunOptions()) -> RunResult 
     return None
   seeds = sac_train.seed_list(options.seeds)
   info = dict(config=dataclasses.asdict(stage.config), meta=stage.card.to_json(), seeds=seeds)
-  _check_resumable(Path(out), info, extendable=not stage.plugins, legacy_meta=stage.legacy_meta)
+  _check_resumable(Path(out), info, stage)
   # meta.json is written last (_write_run): without it the run stopped before its outputs were complete
   if ckpt.load_state_info(out).get("env_steps") != stage.config.total_env_steps or not (Path(out) / "meta.json").is_file():
     return None
@@ -183,7 +191,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
   trainer = sac_train.make_train(env, config, plugins=stage.plugins)
   infos = [dict(config=dataclasses.asdict(cfg), meta=c.to_json(), seeds=seeds) for cfg, c in zip(configs, cards)]
   if source is not None:
-    _check_resumable(source, infos[0], extendable=not stage.plugins, legacy_meta=stage.legacy_meta)
+    _check_resumable(source, infos[0], stage)
   S = len(seeds)
   part = (lambda tree, p: tree) if len(points) == 1 else (
       lambda tree, p: jax.tree.map(lambda x: x[p * S:(p + 1) * S], tree))
@@ -364,14 +372,14 @@ def _save_steps(config: SACConfig, save_every) -> int:
   return int(save_every)
 
 
-def _check_resumable(source: Path, info: dict, extendable: bool = False, legacy_meta: dict | None = None) -> None:
+def _check_resumable(source: Path, info: dict, stage: Stage) -> None:
   """Refuses (reading only) to resume ``source`` if its run was started with another configuration,
   run metadata or seeds than ``info`` describes, or a checkpoint it depends on changed since.
 
-  ``extendable``: a larger ``total_env_steps`` continues the run past its end (a finished run too),
-  exactly as an uninterrupted run of the larger budget; only without plug-ins, whose schedules
-  (discriminator weight and lr, KL weight) are fractions of the budget. ``legacy_meta``:
-  :attr:`Stage.legacy_meta`."""
+  A larger ``total_env_steps`` continues the run past its end (a finished run too), exactly as an
+  uninterrupted run of the larger budget, when ``stage`` is :attr:`Stage.extendable`: not with
+  plug-ins whose schedules (discriminator weight and lr, KL weight) are fractions of the budget.
+  Legacy fields: :attr:`Stage.legacy_meta`; budget-derived ones: :attr:`Stage.budget_meta`."""
   saved = ckpt.load_state_info(source)
   for key, kind in (("config", dict), ("meta", dict), ("seeds", list)):
     if not isinstance(saved.get(key), kind):
@@ -380,7 +388,7 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False, legacy_
   budget = lambda d: (d.get("config") or {}).get("total_env_steps")
   if budget(saved) != budget(info):
     done = saved.get("env_steps") if isinstance(saved.get("env_steps"), int) else 0
-    if not extendable:
+    if not stage.extendable:
       raise ckpt.CheckpointError(
           f"cannot resume {source} with total_env_steps={budget(info)} (saved {budget(saved)}): its plug-ins' "
           f"schedules (discriminator, KL) are fractions of the budget; resume with --total-env-steps "
@@ -389,8 +397,10 @@ def _check_resumable(source: Path, info: dict, extendable: bool = False, legacy_
       raise ckpt.CheckpointError(
           f"cannot resume {source} with total_env_steps={budget(info)}: it has already trained {done} env "
           f"steps; give --total-env-steps >= {done}")
-    saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)))
-  saved = _same_low_as_slim_copy(_with_legacy_fields(saved, legacy_meta or {}, info.get("config") or {}), info)
+    now = info.get("meta") or {}
+    saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)),
+                 meta=dict(saved["meta"], **{k: now[k] for k in stage.budget_meta if k in now}))
+  saved = _same_low_as_slim_copy(_with_legacy_fields(saved, stage.legacy_meta, info.get("config") or {}), info)
   # meta["sac"] repeats the config; a state saved before the card format was recorded has format 1
   no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m not in ("sac", FORMAT_KEY)} if k == "meta"
                           else d.get(k)) for k in info}
