@@ -243,6 +243,54 @@ def test_check_finite_reports_the_earliest_term():
   sac_train.check_finite({"nonfinite/critic_loss": np.array([-1])}, 0, 4, [0])  # all finite: no error
 
 
+def nan_rewards_for(seed_index: int, after: int):
+  """A plug-in that makes the sampled rewards of the run's seed of index ``seed_index`` NaN once it has
+  taken ``after`` env steps (the others' rewards are untouched): one seed of a program diverges."""
+  from hdt.agents.plugins import Plugin
+  init = lambda key, agent, i: (agent, dict(index=jnp.asarray(i, jnp.int32), steps=jnp.zeros((), jnp.int32)))
+  update = lambda state, transitions, env_steps, key: (dict(state, steps=env_steps), {})
+  reward = lambda state, batch: jnp.where((state["index"] == seed_index) & (state["steps"] > after), jnp.nan,
+                                          batch.reward)
+  return Plugin("nan_rewards", init=init, update=update, reward=reward)
+
+
+def test_one_diverged_seed_stays_at_its_last_finite_state_while_the_others_train_on(tmp_path, capsys):
+  after = 300  # seed 3 (index 1) diverges in the chunk of env steps 300..400
+  run = train(tmp_path / "run", plugins=(nan_rewards_for(1, after),), save_every=100)
+  err = capsys.readouterr().err
+  assert "critic_loss became NaN/inf at env step" in err and "(seed 3)" in err and "1 other run train on" in err
+  _, m0 = ckpt.load(run.run_dir, 0)
+  p1, m1 = ckpt.load(run.run_dir, 1)
+  assert "diverged_at_env_step" not in m0 and after < m1["diverged_at_env_step"] <= after + 100
+  assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(p1))
+  # Seed 0 trained as it would have with no NaN anywhere; seed 3 ends as that run at its last finite chunk.
+  clean = train(tmp_path / "clean", plugins=(nan_rewards_for(99, after),))
+  upto = train(tmp_path / "upto", config=dataclasses.replace(CFG, total_env_steps=after),
+               plugins=(nan_rewards_for(99, after),))
+  seed = lambda params, i: jax.tree.map(lambda x: np.asarray(x[i]), params)
+  same = lambda a, b: all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+  assert same(seed(run.params, 0), seed(clean.params, 0))
+  assert same(seed(run.params, 1), seed(upto.params, 1))
+  assert not same(seed(run.params, 1), seed(clean.params, 1))
+  # Its saved state keeps it stopped: a resume does not bring it back.
+  ts, _, _ = saved_state(run.run_dir, plugins=(nan_rewards_for(1, after),))
+  assert list(np.asarray(ts.diverged_at)) == [-1, m1["diverged_at_env_step"]]
+
+
+def test_a_state_saved_before_diverged_at_existed_loads_as_never_diverged(tmp_path):
+  from flax import struct
+
+  trainer = sac_train.make_train(ENV, CFG)
+  ts = sac_train.vmapped(trainer).init(sac_train.seed_keys([0, 3]), sac_train.seed_indices(2))
+  fields = [f.name for f in dataclasses.fields(sac_train.TrainState) if f.name != "diverged_at"]
+  Old = struct.dataclass(type("TrainState", (), {"__annotations__": {f: object for f in fields}}))
+  ckpt.save_state(tmp_path, Old(**{f: getattr(ts, f) for f in fields}), {}, {"config": {}})
+  template = jax.eval_shape(lambda: ts)
+  loaded = ckpt.load_state(tmp_path, template).tree
+  assert list(np.asarray(loaded.diverged_at)) == [-1, -1]
+  assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(loaded.agent), jax.tree.leaves(ts.agent)))
+
+
 # ------------------------------------------------------------------------------------------------
 # Atomic, versioned checkpoints.
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import sys
 import time
 from typing import Any, Callable, NamedTuple, Sequence
 
@@ -62,6 +63,9 @@ class TrainState:
   env_steps: jax.Array  # int32, env steps taken (summed over parallel envs)
   episode_return: jax.Array  # (num_envs,) float32, running return of the current training episodes
   aux: Any  # {plug-in name: its per-seed state} (e.g. a DiscState, a KLState); {} without plug-ins
+  # env step at which this seed's training went NaN/inf, -1 while it is finite; from then on its agent and
+  # plug-in state stay as they were before that chunk, while the other seeds of the program train on
+  diverged_at: jax.Array
 
 
 class Trainer(NamedTuple):
@@ -120,6 +124,21 @@ def _nonfinite_flags(m: dict, ts: "TrainState") -> dict:
   return flags
 
 
+def _freeze_diverged(start: "TrainState", ts: "TrainState", flags: dict, n_envs: int) -> "TrainState":
+  """``ts`` after a chunk from ``start``, with a seed whose chunk went NaN/inf (``flags``), or that had
+  diverged before, kept at its agent and plug-in state of ``start`` (its last finite ones) and its
+  ``diverged_at`` set: one seed's divergence does not stop the others (a select per chunk, not per step)."""
+  firsts = jnp.stack(list(flags.values()))
+  bad = jnp.any(firsts >= 0)
+  first = jnp.min(jnp.where(firsts >= 0, firsts, jnp.iinfo(jnp.int32).max))
+  was_alive = start.diverged_at < 0
+  diverged_at = jnp.where(was_alive & bad, start.env_steps + (first + 1) * n_envs, start.diverged_at)
+  keep = diverged_at < 0
+  pick = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), new, old)
+  return ts.replace(agent=pick(ts.agent, start.agent), aux=pick(ts.aux, start.aux),
+                    diverged_at=diverged_at.astype(jnp.int32))
+
+
 class TrainingDiverged(FloatingPointError):
   """A loss term or the parameters became NaN/inf; raised by :func:`run` after the bad chunk."""
 
@@ -128,10 +147,10 @@ class TrainingDiverged(FloatingPointError):
     self.term, self.env_step, self.seeds = term, env_step, seeds
 
 
-def check_finite(flags: dict, chunk_start: int, num_envs: int, seeds: Sequence[int]) -> None:
-  """Raises :class:`TrainingDiverged` naming the first non-finite term (earliest env step, then
-  the order critic, actor, alpha, plug-in losses, parameters) of a chunk's ``nonfinite/`` flags
-  (per seed arrays)."""
+def first_nonfinite(flags: dict, chunk_start: int, num_envs: int, seeds: Sequence) -> tuple | None:
+  """(env step, term, [seeds]) of the first non-finite term of a chunk's ``nonfinite/`` flags (per seed
+  arrays): the earliest env step, then the order critic, actor, alpha, plug-in losses, parameters;
+  None when all are finite."""
   priority = {"critic_loss": 0, "actor_loss": 1, "alpha_loss": 2, "parameters": 4, "aux_state": 5}
   worst = None
   for k, v in flags.items():
@@ -142,16 +161,47 @@ def check_finite(flags: dict, chunk_start: int, num_envs: int, seeds: Sequence[i
       step = chunk_start + (int(v[bad].min()) + 1) * num_envs
       cand = (step, order, k[len(NONFINITE):], [seeds[i] for i in bad if v[i] == v[bad].min()])
       worst = min(worst, cand) if worst else cand
-  if worst is None:
-    return
-  step, _, term, bad_seeds = worst
-  what = "the network/temperature parameters" if term == "parameters" else (
+  return None if worst is None else (worst[0], worst[2], worst[3])
+
+
+def _what(term: str) -> str:
+  return "the network/temperature parameters" if term == "parameters" else (
       "the plug-in (e.g. discriminator) state" if term == "aux_state" else term)
+
+
+_ADVICE = ("Try lower learning rates (actor_lr/critic_lr/alpha_lr) or reward_scale, and check the environment "
+           "and reward plug-ins for NaN/inf rewards or observations.")
+
+
+def check_finite(flags: dict, chunk_start: int, num_envs: int, seeds: Sequence[int]) -> None:
+  """Raises :class:`TrainingDiverged` naming :func:`first_nonfinite` of a chunk's flags, if any."""
+  first = first_nonfinite(flags, chunk_start, num_envs, seeds)
+  if first is None:
+    return
+  step, term, bad_seeds = first
   raise TrainingDiverged(
-      f"{what} became NaN/inf at env step {step} (seed{'s' if len(bad_seeds) > 1 else ''} "
-      f"{', '.join(map(str, bad_seeds))}); training stopped there. Try lower learning rates "
-      f"(actor_lr/critic_lr/alpha_lr) or reward_scale, and check the environment and reward plug-ins "
-      f"for NaN/inf rewards or observations.", term, step, bad_seeds)
+      f"{_what(term)} became NaN/inf at env step {step} (seed{'s' if len(bad_seeds) > 1 else ''} "
+      f"{', '.join(map(str, bad_seeds))}); training stopped there. {_ADVICE}", term, step, bad_seeds)
+
+
+def _report_diverged(flags: dict, before: np.ndarray, now: np.ndarray, chunk_start: int, num_envs: int,
+                     labels: Sequence) -> None:
+  """After a chunk: raises :class:`TrainingDiverged` when no run is left finite; else one warning line
+  per run that diverged in it (``before``/``now``: every run's ``diverged_at``), which the program
+  keeps at its last finite state while the others train on."""
+  newly = np.flatnonzero((now >= 0) & (before < 0))
+  if not newly.size:
+    return
+  mine = {k: np.asarray(v).reshape(-1)[newly] for k, v in flags.items()}
+  if np.all(now >= 0):
+    check_finite(mine, chunk_start, num_envs, [labels[i] for i in newly])
+  left = int(np.sum(now < 0))
+  for i in newly:
+    step, term, _ = first_nonfinite({k: v[[list(newly).index(i)]] for k, v in mine.items()}, chunk_start,
+                                    num_envs, [labels[i]])
+    print(f"warning: {_what(term)} became NaN/inf at env step {step} (seed {labels[i]}); that seed stays at its "
+          f"last finite state (env step {chunk_start}) and {left} other run{'s' if left > 1 else ''} train on. "
+          f"{_ADVICE}", file=sys.stderr, flush=True)
 
 
 def _uniform01_from_bits(bits: jax.Array) -> jax.Array:
@@ -273,6 +323,7 @@ def make_train(
         env_steps=jnp.zeros((), jnp.int32),
         episode_return=jnp.zeros((n_envs,), jnp.float32),
         aux=aux,
+        diverged_at=jnp.full((), -1, jnp.int32),
     )
 
   # ---------------------------------------------------------------------------------------------
@@ -349,6 +400,7 @@ def make_train(
         env_steps=env_steps,
         episode_return=ep_ret * (1.0 - done),
         aux=aux,
+        diverged_at=ts.diverged_at,
     )
     step_metrics = {
         "update": upd_metrics,
@@ -364,7 +416,10 @@ def make_train(
     ``sweepable`` names (per grid point under vmap): SAC fields (:func:`hdt.agents.sac.make_update`)
     and the plug-ins' hyper (:mod:`hdt.agents.plugins`)."""
     check_names(hyper or {}, sweepable)
+    start = ts
     ts, m = jax.lax.scan(lambda ts, _: train_step(ts, hyper), ts, None, length=config.steps_per_chunk)
+    flags = _nonfinite_flags(m, ts)
+    ts = _freeze_diverged(start, ts, flags, n_envs)
     n_learn = jnp.sum(m["learn"])
     learn_mean = lambda x: jnp.sum(x * m["learn"]) / jnp.maximum(n_learn, 1.0)
     metrics = {k: learn_mean(v) for k, v in m["update"].items()}
@@ -376,7 +431,7 @@ def make_train(
     metrics["train_episodes"] = episodes
     metrics["env_steps"] = ts.env_steps
     metrics["update_steps"] = ts.agent.update_steps
-    metrics.update(_nonfinite_flags(m, ts))
+    metrics.update(flags)
     return ts, metrics
 
   # ---------------------------------------------------------------------------------------------
@@ -605,8 +660,10 @@ def run(
   networks, plugins: as :func:`make_train` (when ``trainer`` is None).
 
   After every chunk the loss terms and parameters are checked (flags computed inside the jitted
-  chunk): the first NaN/inf raises :class:`TrainingDiverged` naming the term, env step and seed,
-  before ``on_chunk`` sees the bad state.
+  chunk). A run (seed or grid point) whose chunk went NaN/inf stays at its state from before that chunk
+  (``TrainState.diverged_at``), with one warning line naming the term, env step and seed, while the
+  others train on; when none is left, :class:`TrainingDiverged` is raised before ``on_chunk`` sees the
+  bad state.
 
   History: training metrics have shape (seeds, chunks) (``env_steps`` says where);
   ``eval/...`` entries have shape (seeds, evaluations) (``eval/env_steps`` says where).
@@ -691,11 +748,14 @@ def run(
   if eval_at_start:
     evaluate(start_chunk, start_chunk * chunk_steps)
   t0 = time.perf_counter()
+  diverged = np.asarray(sharding_lib.to_host(ts.diverged_at)).reshape(-1)
   for c in range(start_chunk, config.num_chunks):
     ts, m = chunk_fn(ts)
     m = {k: np.asarray(v) for k, v in sharding_lib.to_host(m).items()}
-    check_finite({k: m.pop(k) for k in list(m) if k.startswith(NONFINITE)}, c * chunk_steps,
-                 config.num_envs, labels)
+    now = np.asarray(sharding_lib.to_host(ts.diverged_at)).reshape(-1)
+    _report_diverged({k: m.pop(k) for k in list(m) if k.startswith(NONFINITE)}, diverged, now, c * chunk_steps,
+                     config.num_envs, labels)
+    diverged = now
     step = (c + 1) * chunk_steps
     m["walltime"] = np.full(n_runs, t_offset + time.perf_counter() - t0)
     for k, v in m.items():

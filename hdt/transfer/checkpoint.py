@@ -429,12 +429,16 @@ def _check_fits(d: Path, got: list, want: list, written_by: str | None) -> None:
 # new); their other copies (critics, target critics, Adam moments) are dropped on load.
 _LEGACY_NORM = ((".agent.policy_params['obs_norm']", ".agent.obs_norm"),
                 ("['policy']['obs_norm']", "['obs_norm']"))
+# TrainState leaves added since states were saved (keystr -> the value an older state means):
+# hdt.agents.train.TrainState.diverged_at, -1 for a seed that never diverged.
+_ADDED_LEAVES = {".diverged_at": -1}
 
 
 def _legacy_sources(got: list, want: list) -> list[list[int]] | None:
   """For a state saved by an older hdt (leaf specs ``got``), the saved indices that make each leaf of
   ``want`` (one leaf, or several raveled and concatenated); None if ``got`` is not such a state or the
-  conversions below do not make it fit. Two conversions: the observation statistics that lived inside
+  conversions below do not make it fit. Three conversions: leaves added since (:data:`_ADDED_LEAVES`,
+  no saved index), the observation statistics that lived inside
   the networks (:data:`_LEGACY_NORM`; their other copies are dropped), and the Adam moments kept per
   layer before the optimisers raveled each small network's parameters (``hdt.agents.sac.make_optimizers``):
   ``...mu['params']...`` leaves become one ``...mu`` vector, in pytree order (as ``optax.flatten``)."""
@@ -448,6 +452,9 @@ def _legacy_sources(got: list, want: list) -> list[list[int]] | None:
   for name, shape, dtype in want:
     if index.get(name, (None, None))[1] == [name, shape, dtype]:
       sources.append([index[name][0]])
+      continue
+    if name in _ADDED_LEAVES and name not in index:
+      sources.append([])  # filled with its value for an older state (pick)
       continue
     # leading axes (seeds, grid points) kept; the rest of every part raveled into the last axis
     lead = shape[:-1]
@@ -467,20 +474,20 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
   info = load_state_info(run_dir)
   d = current(state_dir(Path(run_dir).resolve()))
 
-  def fits(got, tree):  # (treedef, saved indices per leaf of tree, shape per leaf of tree)
+  def fits(got, tree):  # (treedef, saved indices per leaf of tree, (name, shape, dtype) per leaf of tree)
     flat, treedef = jax.tree_util.tree_flatten_with_path(tree)
     want = _leaf_specs([(jax.tree_util.keystr(p), x) for p, x in flat])
     sources = _legacy_sources(got, want)
     if sources is None:
       _check_fits(d, got, want, info.get("hdt_version"))
       sources = [[i] for i in range(len(want))]
-    return treedef, sources, [tuple(spec[1]) for spec in want]
+    return treedef, sources, [(spec[0], tuple(spec[1]), spec[2]) for spec in want]
 
   saved = info.get("leaves", [])
-  treedef, state_idx, shapes = fits(saved, template)
+  treedef, state_idx, specs = fits(saved, template)
   with_best = best_template is not None and "best_leaves" in info
   best_saved = info["best_leaves"] if with_best else []
-  best_def, best_idx, best_shapes = fits(best_saved, best_template) if with_best else (None, [], [])
+  best_def, best_idx, best_specs = fits(best_saved, best_template) if with_best else (None, [], [])
   try:
     arrays = _orbax_restore(d / "arrays")
     group = lambda name, n: [np.asarray(arrays[name][f"{i:05d}"]) for i in range(n)]
@@ -495,12 +502,13 @@ def load_state(run_dir: str | Path, template: Any, best_template: Any = None) ->
       raise CheckpointError(f"corrupt training state in {d}: {name} has shape {x.shape} {x.dtype}, "
                             f"state.json says {shape} {dtype}; delete {d} to start over")
 
-  def pick(xs, idx, shapes):  # one saved leaf per leaf, or (legacy states) several raveled into one
-    return [xs[i[0]] if len(i) == 1 and xs[i[0]].shape == shape else
+  def pick(xs, idx, specs):  # one saved leaf per leaf, or (legacy states) several raveled into one, or none
+    return [np.full(shape, _ADDED_LEAVES[name], dtype) if not i else
+            xs[i[0]] if len(i) == 1 and xs[i[0]].shape == shape else
             np.concatenate([xs[j].reshape(shape[:-1] + (-1,)) for j in i], axis=-1)
-            for i, shape in zip(idx, shapes)]
-  return SavedState(jax.tree_util.tree_unflatten(treedef, pick(state, state_idx, shapes)), hist, info,
-                    jax.tree_util.tree_unflatten(best_def, pick(best, best_idx, best_shapes)) if with_best else None)
+            for i, (name, shape, dtype) in zip(idx, specs)]
+  return SavedState(jax.tree_util.tree_unflatten(treedef, pick(state, state_idx, specs)), hist, info,
+                    jax.tree_util.tree_unflatten(best_def, pick(best, best_idx, best_specs)) if with_best else None)
 
 
 def differences(saved: Any, requested: Any, path: str = "") -> list[str]:

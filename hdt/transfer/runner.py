@@ -144,7 +144,7 @@ def finished_run(stage: Stage, options: RunOptions = RunOptions()) -> RunResult 
     return None
   seeds = sac_train.seed_list(options.seeds)
   info = dict(config=dataclasses.asdict(stage.config), meta=stage.card.to_json(), seeds=seeds)
-  _check_resumable(Path(out), info, stage)
+  _check_resumable(Path(out), info, **_resume_rules(stage))
   # meta.json is written last (_write_run): without it the run stopped before its outputs were complete
   if ckpt.load_state_info(out).get("env_steps") != stage.config.total_env_steps or not (Path(out) / "meta.json").is_file():
     return None
@@ -191,7 +191,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
   trainer = sac_train.make_train(env, config, plugins=stage.plugins)
   infos = [dict(config=dataclasses.asdict(cfg), meta=c.to_json(), seeds=seeds) for cfg, c in zip(configs, cards)]
   if source is not None:
-    _check_resumable(source, infos[0], stage)
+    _check_resumable(source, infos[0], **_resume_rules(stage))
   S = len(seeds)
   part = (lambda tree, p: tree) if len(points) == 1 else (
       lambda tree, p: jax.tree.map(lambda x: x[p * S:(p + 1) * S], tree))
@@ -249,13 +249,15 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
     finally:
       getattr(progress, "close", lambda: None)()  # a live bar ends however training does
     params = sharding.gathered(dict(res.params, **(stage.save_extra(res.state) if stage.save_extra else {})))
+    diverged = np.asarray(sharding.gathered(res.state.diverged_at)).reshape(-1)
     results = []
     for p, (run_dir, _) in enumerate(outputs):
       res_p = sac_train.RunResult(part(params, p), part(res.history, p), None,  # the state is not written
                                   None if res.best is None else part(res.best, p))
       if run_dir is not None:
         with interrupt.deferred():  # a Ctrl-C here would leave some seeds unwritten
-          sharding.on_writer(lambda: _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p),
+          sharding.on_writer(lambda: _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p,
+                                                diverged[p * S:(p + 1) * S]),
                              f"writing {run_dir}")
       source = None if run_dir is None else str(run_dir)
       results.append(RunResult(run_dir, res_p.params, res_p.history, cards[p].replace(source=source), res_p.best))
@@ -308,14 +310,18 @@ def counted_mujoco_warnings(quiet: bool = False):
             file=sys.stderr, flush=True)
 
 
-def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params, res) -> None:
-  """The run's outputs; meta.json last, so a run directory with meta.json is complete."""
+def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params, res,
+               diverged: Sequence[int] = ()) -> None:
+  """The run's outputs; meta.json last, so a run directory with meta.json is complete. ``diverged``:
+  each seed's TrainState.diverged_at; a seed that diverged records it as ``diverged_at_env_step``
+  (its parameters are its last finite ones)."""
   rundir.check_held(run_dir)
   unit = "HL decisions" if meta.get("level") == "high" else "env steps"  # what total_env_steps counts
   ckpt.write_json_atomic(run_dir / "config.json", dict(dataclasses.asdict(config), budget_unit=unit))
   for i, s in enumerate(seeds):
-    ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], params), dict(meta, seed=s),
-              best=_seed_best(res.best, i))
+    at = int(diverged[i]) if len(diverged) else -1
+    ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], params),
+              dict(meta, seed=s, **({"diverged_at_env_step": at} if at >= 0 else {})), best=_seed_best(res.best, i))
   write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
   write_tensorboard(run_dir / "tb", res.history, seeds)
   hashes = [ckpt.content_hash(run_dir, i) for i in range(len(seeds))]  # checked on every load
@@ -372,14 +378,19 @@ def _save_steps(config: SACConfig, save_every) -> int:
   return int(save_every)
 
 
-def _check_resumable(source: Path, info: dict, stage: Stage) -> None:
+def _resume_rules(stage: Stage) -> dict:
+  return dict(extendable=stage.extendable, legacy_meta=stage.legacy_meta, budget_meta=stage.budget_meta)
+
+
+def _check_resumable(source: Path, info: dict, extendable: bool = False, legacy_meta: dict | None = None,
+                     budget_meta: Sequence[str] = ()) -> None:
   """Refuses (reading only) to resume ``source`` if its run was started with another configuration,
   run metadata or seeds than ``info`` describes, or a checkpoint it depends on changed since.
 
-  A larger ``total_env_steps`` continues the run past its end (a finished run too), exactly as an
-  uninterrupted run of the larger budget, when ``stage`` is :attr:`Stage.extendable`: not with
-  plug-ins whose schedules (discriminator weight and lr, KL weight) are fractions of the budget.
-  Legacy fields: :attr:`Stage.legacy_meta`; budget-derived ones: :attr:`Stage.budget_meta`."""
+  ``extendable`` (:attr:`Stage.extendable`): a larger ``total_env_steps`` continues the run past its end
+  (a finished run too), exactly as an uninterrupted run of the larger budget; not with plug-ins whose
+  schedules (discriminator weight and lr, KL weight) are fractions of the budget. ``legacy_meta``:
+  :attr:`Stage.legacy_meta`; ``budget_meta``: :attr:`Stage.budget_meta`."""
   saved = ckpt.load_state_info(source)
   for key, kind in (("config", dict), ("meta", dict), ("seeds", list)):
     if not isinstance(saved.get(key), kind):
@@ -388,7 +399,7 @@ def _check_resumable(source: Path, info: dict, stage: Stage) -> None:
   budget = lambda d: (d.get("config") or {}).get("total_env_steps")
   if budget(saved) != budget(info):
     done = saved.get("env_steps") if isinstance(saved.get("env_steps"), int) else 0
-    if not stage.extendable:
+    if not extendable:
       raise ckpt.CheckpointError(
           f"cannot resume {source} with total_env_steps={budget(info)} (saved {budget(saved)}): its plug-ins' "
           f"schedules (discriminator, KL) are fractions of the budget; resume with --total-env-steps "
@@ -399,8 +410,8 @@ def _check_resumable(source: Path, info: dict, stage: Stage) -> None:
           f"steps; give --total-env-steps >= {done}")
     now = info.get("meta") or {}
     saved = dict(saved, config=dict(saved["config"], total_env_steps=budget(info)),
-                 meta=dict(saved["meta"], **{k: now[k] for k in stage.budget_meta if k in now}))
-  saved = _same_low_as_slim_copy(_with_legacy_fields(saved, stage.legacy_meta, info.get("config") or {}), info)
+                 meta=dict(saved["meta"], **{k: now[k] for k in budget_meta if k in now}))
+  saved = _same_low_as_slim_copy(_with_legacy_fields(saved, legacy_meta or {}, info.get("config") or {}), info)
   # meta["sac"] repeats the config; a state saved before the card format was recorded has format 1
   no_sac = lambda d: {k: ({m: v for m, v in d[k].items() if m not in ("sac", FORMAT_KEY)} if k == "meta"
                           else d.get(k)) for k in info}
