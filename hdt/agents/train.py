@@ -196,9 +196,8 @@ def _report_diverged(flags: dict, before: np.ndarray, now: np.ndarray, chunk_sta
   if np.all(now >= 0):
     check_finite(mine, chunk_start, num_envs, [labels[i] for i in newly])
   left = int(np.sum(now < 0))
-  for i in newly:
-    step, term, _ = first_nonfinite({k: v[[list(newly).index(i)]] for k, v in mine.items()}, chunk_start,
-                                    num_envs, [labels[i]])
+  for j, i in enumerate(newly):
+    step, term, _ = first_nonfinite({k: v[j:j + 1] for k, v in mine.items()}, chunk_start, num_envs, [labels[i]])
     print(f"warning: {_what(term)} became NaN/inf at env step {step} (seed {labels[i]}); that seed stays at its "
           f"last finite state (env step {chunk_start}) and {left} other run{'s' if left > 1 else ''} train on. "
           f"{_ADVICE}", file=sys.stderr, flush=True)

@@ -257,7 +257,7 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
       if run_dir is not None:
         with interrupt.deferred():  # a Ctrl-C here would leave some seeds unwritten
           sharding.on_writer(lambda: _write_run(run_dir, configs[p], infos[p]["meta"], seeds, res_p.params, res_p,
-                                                diverged[p * S:(p + 1) * S]),
+                                                part(diverged, p)),
                              f"writing {run_dir}")
       source = None if run_dir is None else str(run_dir)
       results.append(RunResult(run_dir, res_p.params, res_p.history, cards[p].replace(source=source), res_p.best))
@@ -311,7 +311,7 @@ def counted_mujoco_warnings(quiet: bool = False):
 
 
 def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params, res,
-               diverged: Sequence[int] = ()) -> None:
+               diverged: np.ndarray) -> None:
   """The run's outputs; meta.json last, so a run directory with meta.json is complete. ``diverged``:
   each seed's TrainState.diverged_at; a seed that diverged records it as ``diverged_at_env_step``
   (its parameters are its last finite ones)."""
@@ -319,7 +319,7 @@ def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params
   unit = "HL decisions" if meta.get("level") == "high" else "env steps"  # what total_env_steps counts
   ckpt.write_json_atomic(run_dir / "config.json", dict(dataclasses.asdict(config), budget_unit=unit))
   for i, s in enumerate(seeds):
-    at = int(diverged[i]) if len(diverged) else -1
+    at = int(diverged[i])
     ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], params),
               dict(meta, seed=s, **({"diverged_at_env_step": at} if at >= 0 else {})), best=_seed_best(res.best, i))
   write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
