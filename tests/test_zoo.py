@@ -250,6 +250,24 @@ def test_a_failed_export_leaves_nothing_in_the_zoo(zoo_copy, monkeypatch):
     assert sorted(str(p) for p in zoo_copy.rglob("*")) == before
 
 
+def test_exporting_a_run_in_which_a_seed_diverged_warns_and_records_it(point_low, tmp_path, monkeypatch, capsys):
+  import json
+  import shutil
+
+  monkeypatch.setattr(names, "ZOO_DIR", tmp_path / "zoo")
+  run = tmp_path / "run"
+  shutil.copytree(point_low.run_dir if hasattr(point_low, "run_dir") else point_low, run)
+  zoo.export(run, "t/clean", "test", episodes=2)
+  assert "diverged" not in json.loads((tmp_path / "zoo/t/clean/zoo.json").read_text())
+  assert "diverged" not in capsys.readouterr().err
+  m = run / "seed_0" / "meta.json"
+  m.write_text(json.dumps(dict(json.loads(m.read_text()), diverged_at_env_step=1200)))
+  zoo.export(run, "t/diverged", "test", episodes=2)
+  err = capsys.readouterr().err
+  assert "seed 0 (from env step 1200) stopped training when its loss went NaN/inf" in err, err
+  assert json.loads((tmp_path / "zoo/t/diverged/zoo.json").read_text())["diverged"] == {"0": 1200}
+
+
 def test_committed_zoo_stays_a_few_megabytes():
   """The zoo is committed: it keeps what is loaded from it (zoo.py) and no more, one file per set."""
   from hdt.transfer import checkpoint as ckpt

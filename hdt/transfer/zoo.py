@@ -22,6 +22,7 @@ import datetime
 import io
 import json
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +101,12 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
     raise ZooError(f"zoo entry {name!r} exists; pass overwrite=True (--overwrite) to replace it")
   rundir.check_claimable(dest, overwrite=overwrite, what="name", reads={"exported": run}, zoo_ok=True)
   task = task or meta["task"]
+  diverged = _diverged_seeds(run)
+  if diverged:
+    print(f"warning: {run}: seed{'s' if len(diverged) > 1 else ''} "
+          + ", ".join(f"{s} (from env step {at})" for s, at in diverged.items())
+          + " stopped training when its loss went NaN/inf; the entry keeps each at its last finite state and "
+          f"records it under 'diverged'", file=sys.stderr, flush=True)
   parent_existed = dest.parent.exists()
   atomic.make_dirs(dest.parent)
   tmp = atomic.temp_dir(dest.parent, dest.name)
@@ -120,7 +127,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
     ckpt.record_seed_hashes(tmp)
     (tmp / "zoo.json").write_text("{}")  # an entry for the evaluations below (as ckpt.load sees it)
     full, check = _numbers(str(tmp), low, task, episodes, task_kw)
-    _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash, keep_sac)
+    _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash, keep_sac, diverged)
     return rundir.install(tmp, dest, overwrite=overwrite, reads={"exported": run}, zoo_ok=True, what="name")
   except BaseException:
     atomic.remove(tmp)  # nothing half-written is left in zoo/
@@ -128,6 +135,16 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
       with contextlib.suppress(OSError):
         dest.parent.rmdir()
     raise
+
+
+def _diverged_seeds(run: Path) -> dict[int, int]:
+  """{seed: env step} of the run's seeds that diverged (their meta's ``diverged_at_env_step``)."""
+  out = {}
+  for mp in sorted(run.glob("seed_*/meta.json")):
+    m = json.loads(mp.read_text())
+    if m.get("diverged_at_env_step") is not None:
+      out[int(m.get("seed", mp.parent.name.removeprefix("seed_")))] = int(m["diverged_at_env_step"])
+  return out
 
 
 def _keep_eval_rows(metrics: Path, out: Path) -> None:
@@ -221,7 +238,7 @@ def reslim(name: str, keep_sac: bool | None = None) -> dict:
 
 
 def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash=None,
-                 keep_sac=False):
+                 keep_sac=False, diverged=None):
   sac, slimmed = meta.get("sac", {}), sorted(slimmed, key=lambda s: s["seed"])
   info = dict(name=name, level=meta["level"], agent=meta["agent"], task=task, task_options=task_kw,
               low=low, command=command,
@@ -235,6 +252,8 @@ def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slim
     info["keeps"] = "sac" if keep_sac else "policy"
   if low_hash is not None:
     info["low_sha256"] = low_hash
+  if diverged:  # {seed: env step}: these seeds' policies stopped there
+    info["diverged"] = {str(s): at for s, at in diverged.items()}
   info["entry_sha256"] = ckpt.content_hash(tmp)
   atomic.write_text(tmp / "zoo.json", json.dumps(info, indent=1))
 
