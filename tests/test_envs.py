@@ -126,6 +126,20 @@ def test_fall_ends_episode():
   assert s.task["steps"] == 0 and s.physics.qpos[2] > 0.5  # back at the initial state
 
 
+def test_a_fall_does_not_end_a_task_episode_of_the_full_baseline():
+  """The authors' FullEnv ends an episode on high_level_is_done only, which ignores falls (ant.py
+  Ant.high_level_is_done: False; maze.py MazeMJ: the goal cell): a fallen ant stays down and keeps
+  paying the task reward until the time limit."""
+  for task in ("waypoint", "maze"):
+    env = E.make("ant", task)
+    s = env.reset(jax.random.PRNGKey(0))
+    qpos = np.array(s.physics.qpos)
+    qpos[2] = 1.2
+    s = jax.jit(env.step)(_with_qpos(env, s, qpos), jnp.zeros(8))
+    assert s.metrics["fall"] == 1.0 and s.done == 0.0 and s.discount == 1.0, task
+    assert s.task["steps"] == 1, task
+
+
 def test_reach_keeps_robot_between_episodes():
   env = E.make("point", "reach", reset_prob=0.0, ll_horizon=5)
   s = env.reset(jax.random.PRNGKey(0))

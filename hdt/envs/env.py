@@ -19,9 +19,9 @@ def _where(c, a, b):
 
 
 class AgentTaskEnv:
-  """Pure, vmappable environment. Episodes end on a time limit, a fall or a solved task, and reset
-  inside ``step`` (the LL reach task keeps the robot's state unless it fell or a ``reset_prob`` coin
-  says otherwise, and draws a new goal)."""
+  """Pure, vmappable environment. Episodes end on a time limit or a solved task, and on the LL reach
+  task also on a fall, and reset inside ``step`` (the LL reach task keeps the robot's state unless it
+  fell or a ``reset_prob`` coin says otherwise, and draws a new goal)."""
 
   def __init__(self, agent: AgentSpec, task: Task, backend: Backend = "auto"):
     if task.family and task.family != agent.family:
@@ -190,7 +190,9 @@ class AgentTaskEnv:
                    reward=jnp.asarray(reward, jnp.float32), done=fell.astype(jnp.float32),
                    discount=1.0 - fell.astype(jnp.float32),
                    task=dict(state.task, t=t, steps=steps, solved=solved), metrics=metrics, key=key)
-    terminal = fell | solved
+    # The LL task ends on a fall (the authors' low_level_is_done); a task's flat episode (the Full
+    # baseline, FullEnv) ends as their high_level_is_done: on solving it, never on a fall.
+    terminal = (fell & self.task.low_level) | solved
     timeout = steps >= self.horizon
     done = terminal | timeout
 
