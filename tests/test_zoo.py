@@ -272,14 +272,15 @@ def test_committed_zoo_stays_a_few_megabytes():
   """The zoo is committed: it keeps what is loaded from it (zoo.py) and no more, one file per set."""
   from hdt.transfer import checkpoint as ckpt
   disk = lambda d: sum(p.stat().st_blocks * 512 for p in d.rglob("*") if p.is_file())  # what du counts
-  # per entry: an HL's policies ≈ 0.06 MB, an arm LL's ≈ 0.2 MB, a legged LL's ≈ 0.4 MB; a replay
-  # buffer, an Adam state or critics kept by mistake are more. The bound is README's ("The model zoo").
+  # per entry: an HL's policies ≈ 0.06 MB, an arm LL's ≈ 0.2 MB, a legged LL's ≈ 0.4 MB, a legged Full
+  # policy (the paper's [400, 300] over 125-165 observations) ≈ 0.7-0.9 MB; a replay buffer, an Adam state
+  # or critics kept by mistake are more. The bound is README's ("The model zoo").
   total = disk(names.ZOO_DIR) / 1e6
-  assert total < 15, f"zoo/ takes {total:.1f} MB on disk: too many entries to commit"
+  assert total < 20, f"zoo/ takes {total:.1f} MB on disk: too many entries to commit"
   for info in zoo.entries():
     entry = names.ZOO_DIR / info["name"]
-    mb = disk(entry) / 1e6
-    assert mb < 0.6, f"zoo entry {info['name']} takes {mb:.2f} MB; export policies only (zoo.export slims them)"
+    mb, bound = disk(entry) / 1e6, 1.0 if info["level"] == "full" else 0.6
+    assert mb < bound, f"zoo entry {info['name']} takes {mb:.2f} MB; export policies only (zoo.export slims them)"
     assert not list(entry.rglob(names.ORBAX_MARKER)), f"{entry} keeps orbax directories: zoo.reslim packs them"
     for seed in entry.glob("seed_*"):
       final, best = ckpt.has_params(seed / "params"), ckpt.has_params(seed / "best/params")

@@ -3,7 +3,8 @@
   PYTHONPATH=. python experiments/studies/curves.py RUN [RUN ...] --metric success_max --out experiments/results/NAME
 
 A RUN is a run directory, ``label=RUN_DIR``, or ``label=FILE.csv#name``: the series ``name`` of a CSV this
-script wrote before (for a run whose directory is gone). ``--hline label=value`` draws a reference level.
+script wrote before (for a run whose directory is gone). ``--hline label=value`` draws a reference level;
+``--xscale label=factor`` multiplies a series' x (e.g. a Full run's env steps by 1/k, onto HL decisions).
 """
 
 from __future__ import annotations
@@ -38,11 +39,15 @@ def main(argv=None):
   p.add_argument("--title", default="")
   p.add_argument("--hline", action="append", default=[], help="label=value: a dashed reference level")
   p.add_argument("--xmax", type=float, default=None, help="drop points beyond this x")
+  p.add_argument("--xscale", action="append", default=[],
+                 help="label=factor: multiply that series' x, e.g. Full=0.03125 (env steps / k 32)")
   a = p.parse_args(argv)
+  xscale = {k: float(v) for k, _, v in (s.rpartition("=") for s in a.xscale)}
   series, rows = {}, []
   for spec in a.runs:
     label, _, run = spec.rpartition("=") if "=" in spec else (Path(spec).name, "", spec)
     x, y = from_csv(*run.split("#", 1)) if "#" in run else read_eval_curves(run)[f"eval/{a.metric}"]
+    x = x * xscale.get(label, 1.0)
     if a.xmax is not None:
       x, y = x[x <= a.xmax], y[:, x <= a.xmax]
     series[label] = (x, y)

@@ -114,7 +114,7 @@ def finetune_part(name: str, title: str, a_high: High, b_low: Low, task: str, pr
   recipes = {"finetune_kl": Finetune(a_high, b_low, task, True, options, zoo=zoo.get("finetune_kl")),
              "finetune": Finetune(a_high, b_low, task, False, options, zoo=zoo.get("finetune")),
              "scratch": High(task, b_low, options, steps=pr.ft, zoo=zoo.get("scratch")),
-             "full": Full(b_low.agent, task, options, steps=steps * agent_spec(b_low.agent).k)}
+             "full": Full(b_low.agent, task, options, steps=steps * agent_spec(b_low.agent).k, zoo=zoo.get("full"))}
   cells = [Cell("zero-shot", "final", high=a_high, low=b_low, paper=paper.get("zero_shot", ""))]
   cells += [Cell(METHODS[m], "final", flat=recipes[m], paper=paper.get(m, ""), curve=True) if m == "full" else
             Cell(METHODS[m], "final", high=recipes[m], low=b_low, paper=paper.get(m, ""), curve=True) for m in methods]
