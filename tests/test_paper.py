@@ -44,8 +44,11 @@ def test_zoo_entries_named_by_the_tables_exist_and_are_what_they_stand_for(name)
     info = names.info_of(names.PREFIX + r.zoo)
     assert info is not None, f"{name}: zoo:{r.zoo} is not in the zoo"
     agent = r.agent if isinstance(r, (Low, Full)) else r.low.agent
-    assert (info["level"], info["agent"]) == ("high" if isinstance(r, (High, Finetune)) else "low", agent), r.zoo
-    assert info["task"] == (r.task if isinstance(r, (High, Finetune)) else "reach"), r.zoo
+    level = "high" if isinstance(r, (High, Finetune)) else "full" if isinstance(r, Full) else "low"
+    assert (info["level"], info["agent"]) == (level, agent), r.zoo
+    assert info["task"] == (r.task if level != "low" else "reach"), r.zoo
+    if isinstance(r, Full):  # a flat policy is of one task variant (e.g. the maze's goal)
+      assert info["task_options"] == dict(r.options), r.zoo
 
 
 @functools.cache
