@@ -139,12 +139,8 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
 
 def _diverged_seeds(run: Path) -> dict[int, int]:
   """{seed: env step} of the run's seeds that diverged (their meta's ``diverged_at_env_step``)."""
-  out = {}
-  for mp in sorted(run.glob("seed_*/meta.json")):
-    m = json.loads(mp.read_text())
-    if m.get("diverged_at_env_step") is not None:
-      out[int(m.get("seed", mp.parent.name.removeprefix("seed_")))] = int(m["diverged_at_env_step"])
-  return out
+  metas = [{"seed": i} | ckpt.load_meta(run, i) for i in ckpt.list_seeds(run)]
+  return {int(m["seed"]): int(m["diverged_at_env_step"]) for m in metas if "diverged_at_env_step" in m}
 
 
 def _keep_eval_rows(metrics: Path, out: Path) -> None:
