@@ -18,6 +18,47 @@ def test_zoo_entry_reevaluates_to_its_recorded_check(name):
   assert not zoo.within_noise(recorded, fresh), f"{name}: {'; '.join(zoo.within_noise(recorded, fresh))}"
 
 
+def _check_result(episode_returns, success=None):
+  """A check's result as evaluate.evaluate records it, from per-seed lists of episode returns."""
+  r = np.asarray(episode_returns, float)
+  out = dict(seeds=list(range(len(r))), episodes=r.shape[1], return_mean=float(r.mean()),
+             episode_return_std=r.std(axis=1).tolist(), episode_return_min=r.min(axis=1).tolist(),
+             episode_return_max=r.max(axis=1).tolist())
+  if success is not None:
+    out["success_mean"] = float(np.mean(success))
+  return out
+
+
+def test_within_noise_allows_one_episode_that_ends_otherwise_but_not_two():
+  # the sparse maze: two seeds reach the goal (+1000) in all 4 check episodes, one never does
+  rec = [[999.6] * 4, [-0.6] * 4, [999.7] * 4]
+  succ = lambda r: [[x > 500 for x in s] for s in r]
+  recorded = _check_result(rec, succ(rec))
+  assert not zoo.within_noise(recorded, _check_result(rec, succ(rec)))
+  for flips in ([(0, 0)], [(1, 2)]):  # one goal missed, or one reached, on another CPU
+    r = [list(s) for s in rec]
+    for i, j in flips:
+      r[i][j] = -0.7 if r[i][j] > 500 else 999.5
+    assert not zoo.within_noise(recorded, _check_result(r, succ(r))), flips
+  r = [list(s) for s in rec]
+  r[0][0] = r[2][1] = -0.7
+  assert zoo.within_noise(recorded, _check_result(r, succ(r)))[0].startswith("return")
+  # every recorded episode succeeded (spread ~0), and the check predates the recorded extremes:
+  # the fresh replay's range is the episode's worth
+  rec = [[198.8] * 12, [198.9] * 12]
+  recorded = _check_result(rec, succ(rec))
+  for k in ("episode_return_min", "episode_return_max"):
+    del recorded[k]
+  r = [list(s) for s in rec]
+  r[1][5] = -3.0
+  assert not zoo.within_noise(recorded, _check_result(r, succ(r)))
+  r[0][7] = -3.0
+  assert zoo.within_noise(recorded, _check_result(r, succ(r)))
+  # a dense return that drifts in every episode is not one episode's worth
+  rec = [[100.0 + i for i in range(12)]]
+  assert zoo.within_noise(_check_result(rec), _check_result([[x - 10.0 for x in rec[0]]]))
+
+
 def test_zoo_names_resolve_and_an_hl_uses_the_ll_seed_it_was_trained_over():
   p = ev.compose("zoo:arm_point/push1", "zoo:arm_point/low")
   k = p.low_params["params"]["mlp"]["hidden_0"]["kernel"]

@@ -12,13 +12,14 @@ import jax.numpy as jnp
 Policy = Callable[[Any, jax.Array], jax.Array]
 
 
-def evaluate(env, policy: Policy, params, key: jax.Array, num_episodes: int) -> dict:
+def evaluate(env, policy: Policy, params, key: jax.Array, num_episodes: int, per_episode: bool = False) -> dict:
   """``num_episodes`` parallel rollouts of ``policy(params, obs)`` on ``env``.
 
   Each episode is counted up to and including its first ``done`` (within ``env.horizon`` steps).
   Returns ``return`` (mean over episodes), ``return_std``, ``length``, and for each entry ``k``
   of ``state.metrics``: ``k`` (mean over the episode's steps), ``k_max`` and ``k_final`` (value
-  at the episode's last step), each averaged over episodes.
+  at the episode's last step), each averaged over episodes; ``per_episode``: also ``episode_return``,
+  each episode's return (what one episode can move the mean by).
   """
   n = num_episodes
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
@@ -66,6 +67,8 @@ def evaluate(env, policy: Policy, params, key: jax.Array, num_episodes: int) -> 
       "return_std": jnp.std(c["ret"]),
       "length": jnp.mean(c["length"]),
   }
+  if per_episode:
+    out["episode_return"] = c["ret"]
   for k in c["msum"]:
     x = c["msum"][k]
     out[k] = jnp.mean(x / length.reshape(length.shape + (1,) * (x.ndim - 1)), axis=0)

@@ -159,7 +159,8 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   def one(params, norm, low_params, low_norm, k):
     env = _env_for(policy, task, backend, low_params, low_obs_norm=low_norm, **task_overrides)
     act = policy.card.policy_fn(norm)
-    return acting.evaluate(_UniformActions(env) if policy.uniform_actions else env, act, params, k, episodes)
+    return acting.evaluate(_UniformActions(env) if policy.uniform_actions else env, act, params, k, episodes,
+                            per_episode=True)
 
   first = lambda tree: jax.tree.map(lambda x: x[0], tree)
   first_low = None if policy.low_params is None else first(policy.low_params)
@@ -185,7 +186,9 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   which["metric"] = get_task(task or policy.card.task).headline  # what a table reports
   if policy.low_card is not None:
     which["low_params"] = policy.low_card.loaded
-  spread = {"episode_return_std": np.asarray(out["return_std"]).tolist()}  # per seed, across episodes
+  rets = np.asarray(out["episode_return"])
+  spread = {"episode_return_std": np.asarray(out["return_std"]).tolist(),  # per seed, across episodes
+            "episode_return_min": rets.min(axis=1).tolist(), "episode_return_max": rets.max(axis=1).tolist()}
   return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary, **spread)
 
 

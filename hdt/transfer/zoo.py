@@ -284,20 +284,29 @@ def within_noise(recorded: dict, fresh: dict, z: float = 4.0) -> list[str]:
   """What differs between two evaluations of the same episodes by more than sampling noise: the mean
   over all episodes of the return and of the success rate, within ``z`` standard errors (the recorded
   spread across episodes; a Bernoulli one for success), plus one episode's worth. Same-machine replays
-  are exact; on another CPU a few chaotic episodes may end otherwise, a broken checkpoint moves all."""
+  are exact; on another CPU a chaotic episode may end otherwise (one success more or fewer, one return
+  moved across the range seen in either evaluation), while a broken checkpoint moves many."""
   n = len(recorded["seeds"]) * recorded["episodes"]
   out = []
   ret, ret_new = recorded["return_mean"], fresh["return_mean"]
   sd = float(np.mean(recorded.get("episode_return_std", [0.0])))
-  tol = z * sd / np.sqrt(n) + 1e-3 * abs(ret) + 1e-3
+  tol = z * sd / np.sqrt(n) + _episode_range(recorded, fresh) / n + 1e-3 * abs(ret) + 1e-3
   if abs(ret_new - ret) > tol:
     out.append(f"return {ret_new:.4g} vs recorded {ret:.4g} (tolerance {tol:.3g})")
   if "success_mean" in recorded:
     p, p_new = recorded["success_mean"], fresh["success_mean"]
-    tol = z * np.sqrt(p * (1 - p) / n) + 1.0 / n
+    tol = z * np.sqrt(p * (1 - p) / n) + 1.0 / n + 1e-6  # the margin: means of float32 successes
     if abs(p_new - p) > tol:
       out.append(f"success {p_new:.3f} vs recorded {p:.3f} (tolerance {tol:.3f})")
   return out
+
+
+def _episode_range(*results: dict) -> float:
+  """The largest minus the smallest episode return in any of ``results`` (checks recorded before
+  evaluations kept each seed's extremes contribute none)."""
+  lo = [v for r in results for v in r.get("episode_return_min", [])]
+  hi = [v for r in results for v in r.get("episode_return_max", [])]
+  return float(max(hi) - min(lo)) if lo and hi else 0.0
 
 
 def table() -> str:
