@@ -90,8 +90,9 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
   run = Path(resolve(str(run)))
   meta = ckpt.load_meta(run)  # a readable checkpoint of this hdt's format
   if keep_sac and meta.get("level") != "high":
-    raise ZooError(f"{run} is a low level: keep_sac (--keep-sac) is for an HL that finetuning starts from; "
-                   f"an LL entry keeps its policy")
+    what = "a flat (Full) policy" if meta.get("level") == "full" else "a low level"
+    raise ZooError(f"{run} is {what}: keep_sac (--keep-sac) is for an HL that finetuning starts from; "
+                   f"export it without --keep-sac (its entry keeps its policy)")
   if meta.get("level") == "high":
     if not (isinstance(low, str) and low.startswith(PREFIX)):
       raise ZooError(f"{run} is a high level: export its LL first and pass it as low='zoo:NAME' (CLI: --low zoo:NAME)")
