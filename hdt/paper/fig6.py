@@ -26,7 +26,8 @@ PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 
           "quadruped_maze_sample": ("quadruped", "maze", (("goal", "sample"),), "Quadruped Maze Sample (success)",
                                     ".78 ± .08", {"finetune_kl": "quadruped/maze_sample_ft_kl_from_pm_200k",
                                                  "finetune": "quadruped/maze_sample_ft_from_pm_200k",
-                                                 "scratch": "quadruped/maze_200k"})}
+                                                 "scratch": "quadruped/maze_200k",
+                                                 "full": "quadruped/full_maze_sample_96k"})}
 # What the paper says of the curves (its numbers are curves only)
 WORDS = {"finetune_kl": "above plain finetuning, modestly on Maze", "finetune": "above HL scratch",
          "full": "unsuccessful without hierarchy"}
