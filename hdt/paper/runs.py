@@ -279,8 +279,9 @@ class Full(_Recipe):
 
 Recipe = Union[Low, High, Finetune, Full]
 # The zoo's legged LLs, behind every table's and figure's legged cells at the paper preset: hdt's fast
-# settings (LayerNorm critics, RESULTS.md), 1.2M of the paper's 2.5M env steps.
-LEGGED_LOW = {"ant": "ant/low_fast_1200k", "ant3": "ant3/low_fast_1200k", "quadruped": "quadruped/low_fast_1200k"}
+# settings (LayerNorm critics, RESULTS.md), 1.2M of the paper's 2.5M env steps (the Ant2's 600k).
+LEGGED_LOW = {"ant": "ant/low_fast_1200k", "ant3": "ant3/low_fast_1200k", "quadruped": "quadruped/low_fast_1200k",
+              "ant2": "ant2/low_fast_600k"}
 
 USABLE = ("zoo", "reused", "resumed", "trained", "reuse", "resume", "train")  # executed, or planned to be
 
