@@ -91,7 +91,8 @@ def test_each_runs_command_trains_exactly_its_recipe(preset, tmp_path):
       want = r.options if isinstance(r, Low) else dict(r.options)
       assert sets == want and args.seeds == pr.seeds and str(args.out) == s.path == str(tmp_path / name / r.name)
       checked += 1
-  assert checked > 20
+  # the paper preset checks only the runs the zoo does not hold yet, fewer as the zoo fills
+  assert checked > (0 if preset == "paper" else 20)
 
 
 def test_smoke_table_is_written_then_reused_without_training_or_evaluating(tmp_path, monkeypatch, capsys):
