@@ -186,9 +186,8 @@ def evaluate(policy: Policy, task: str | None = None, episodes: int = 100, seeds
   which["metric"] = get_task(task or policy.card.task).headline  # what a table reports
   if policy.low_card is not None:
     which["low_params"] = policy.low_card.loaded
-  rets = np.asarray(out["episode_return"])
-  spread = {"episode_return_std": np.asarray(out["return_std"]).tolist(),  # per seed, across episodes
-            "episode_return_min": rets.min(axis=1).tolist(), "episode_return_max": rets.max(axis=1).tolist()}
+  rets = np.asarray(out["episode_return"])  # [seed, episode]
+  spread = {f"episode_return_{k}": getattr(rets, k)(axis=1).tolist() for k in ("std", "min", "max")}
   return dict(per_seed=per_seed, seeds=idx.tolist(), episodes=episodes, **which, **summary, **spread)
 
 
