@@ -28,6 +28,7 @@ class Transition:
   next_obs: jax.Array
   discount: jax.Array
   extras: Any = None  # optional per-transition data of a plug-in (make_train's transition_extras)
+  done: Any = None  # 1 where the episode ended (time limits too); stored only for n-step returns
 
 
 @struct.dataclass
@@ -41,8 +42,9 @@ def capacity(state: ReplayState) -> int:
   return jax.tree_util.tree_leaves(state.data)[0].shape[0]
 
 
-def make_transition_spec(observation_size: int, action_size: int) -> Transition:
-  """One float32 transition of zeros (the row layout of the buffer; numpy: no device op to compile)."""
+def make_transition_spec(observation_size: int, action_size: int, with_done: bool = False) -> Transition:
+  """One float32 transition of zeros (the row layout of the buffer; numpy: no device op to compile).
+  ``with_done``: also the episode-end flag that n-step sampling needs."""
   z = lambda *s: np.zeros(s, np.float32)
   return Transition(
       obs=z(observation_size),
@@ -50,6 +52,7 @@ def make_transition_spec(observation_size: int, action_size: int) -> Transition:
       reward=z(),
       next_obs=z(observation_size),
       discount=z(),
+      done=z() if with_done else None,
   )
 
 
@@ -104,6 +107,40 @@ def sample_from_bits(state: ReplayState, bits: jax.Array) -> Any:
   size = jnp.maximum(state.size, 1).astype(jnp.uint32)
   idx = (bits.astype(jnp.uint32) % size).astype(jnp.int32)
   return jax.tree_util.tree_map(lambda buf: _take_rows(buf, idx), state.data)
+
+
+def sample_n_step_from_bits(state: ReplayState, bits: jax.Array, n: int, stride: int, gamma: float) -> Transition:
+  """n-step transitions starting at uniformly drawn rows, folded so that the one-step target
+  ``reward + gamma * discount * V(next_obs)`` is the n-step one.
+
+  The buffer must hold ``Transition`` rows with ``done`` that were inserted ``stride`` at a time (one
+  row per parallel env), so the same env's next step sits ``stride`` rows later. A start is drawn
+  among the rows that have ``n - 1`` successors. The sum stops at the first episode end (a time
+  limit included); the fold is ``reward = sum_j gamma^j r_j`` over the ``m`` steps kept,
+  ``discount = gamma^(m-1) * discount_(m-1)`` and ``next_obs`` that of step ``m - 1``.
+  """
+  cap = capacity(state)
+  oldest = (state.position - state.size) % cap
+  starts = jnp.maximum(state.size - (n - 1) * stride, 1).astype(jnp.uint32)
+  offset = (bits.astype(jnp.uint32) % starts).astype(jnp.int32)
+  rows = (oldest + offset[:, None] + stride * jnp.arange(n, dtype=jnp.int32)) % cap  # (B, n)
+  data = state.data
+  reward, discount, done = (_take_rows(x, rows) for x in (data.reward, data.discount, data.done))
+  # alive[:, j]: step j belongs to the start's episode (no end among steps 0..j-1)
+  alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(done[:, :1]), 1.0 - done[:, :-1]], axis=1), axis=1)
+  powers = jnp.asarray(gamma, jnp.float32) ** jnp.arange(n, dtype=jnp.float32)
+  m = jnp.sum(alive, axis=1).astype(jnp.int32)  # steps kept, 1..n
+  last = m - 1
+  first = rows[:, 0]
+  return Transition(
+      obs=_take_rows(data.obs, first),
+      action=_take_rows(data.action, first),
+      reward=jnp.sum(alive * powers * reward, axis=1),
+      next_obs=_take_rows(data.next_obs, jnp.take_along_axis(rows, last[:, None], axis=1)[:, 0]),
+      discount=powers[last] * jnp.take_along_axis(discount, last[:, None], axis=1)[:, 0],
+      extras=None if data.extras is None else jax.tree_util.tree_map(lambda x: _take_rows(x, first), data.extras),
+      done=jnp.take_along_axis(done, last[:, None], axis=1)[:, 0],
+  )
 
 
 @jax.custom_batching.custom_vmap

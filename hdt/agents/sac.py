@@ -85,6 +85,9 @@ class SACConfig:
   # LayerNorm in every hidden layer of Q (and V): stable critics at higher learning rates and update
   # ratios (DroQ, RLPD); the policy is unchanged, so a card's policy loads either way.
   critic_layer_norm: bool = False
+  # Critic targets from n-step returns (sampled as in Rainbow and DrQ-v2, no off-policy correction);
+  # 1 is plain SAC, the authors'.
+  n_step: int = 1
 
   def __post_init__(self):
     # Plain Python numbers (numpy ones, e.g. an np.int64 budget, are accepted) and tuples, so the
@@ -144,7 +147,7 @@ class SACConfig:
     need(self.target_entropy is None or _is_number(self.target_entropy),
          f"target_entropy={self.target_entropy!r}: must be a number or None (-action_size)")
     for name in ("batch_size", "buffer_size", "updates_per_step", "num_envs", "steps_per_chunk",
-                 "num_eval_episodes", "total_env_steps"):
+                 "num_eval_episodes", "total_env_steps", "n_step"):
       v = getattr(self, name)
       need(_is_int(v) and v > 0, f"{name}={v!r}: must be a positive integer")
       need(not _is_int(v) or v < MAX_COUNT,
@@ -165,6 +168,11 @@ class SACConfig:
         self.num_envs <= self.buffer_size,
         f"num_envs={self.num_envs} > buffer_size={self.buffer_size}: one training step inserts "
         "num_envs transitions, raise buffer_size",
+    )
+    need(
+        self.n_step == 1 or self.learning_starts >= self.n_step * self.num_envs,
+        f"n_step={self.n_step} needs learning_starts >= n_step * num_envs = {self.n_step * self.num_envs} "
+        f"(got {self.learning_starts}): an n-step return needs n stored steps of each env",
     )
     need(0.0 < self.tau <= 1.0, f"tau={self.tau}: must be in (0, 1], e.g. 0.005")
     need(0.0 <= self.gamma <= 1.0, f"gamma={self.gamma}: must be in [0, 1], e.g. 0.99")
@@ -208,7 +216,7 @@ MAX_COUNT = 2**31  # step counters and buffer indices are int32
 
 # SACConfig fields added after runs were saved without them, at the behaviour those runs had: a
 # saved state missing a field resumes under this value (hdt.transfer.runner).
-ADDED_FIELDS = {"bootstrap_time_limits": True, "critic_layer_norm": False}
+ADDED_FIELDS = {"bootstrap_time_limits": True, "critic_layer_norm": False, "n_step": 1}
 
 
 def _is_int(v) -> bool:

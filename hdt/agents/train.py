@@ -249,7 +249,7 @@ def make_train(
   v_reset, v_step = jax.vmap(env.reset), jax.vmap(env.step)
   deterministic_policy = lambda obs_norm: lambda params, obs: nets.deterministic_action(
       networks.policy_apply(params, obs, obs_norm)[0])
-  spec = replay_lib.make_transition_spec(obs_size, act_size)
+  spec = replay_lib.make_transition_spec(obs_size, act_size, with_done=config.n_step > 1)
   extending = [p for p in plugins if p.transition_extras is not None]
 
   def extras_fn(state, next_state):  # {plug-in name: its extras of one transition}
@@ -262,6 +262,9 @@ def make_train(
 
   regularizing = [p for p in plugins if p.regularizer is not None]
   rewarding = [p for p in plugins if p.reward is not None]
+  if rewarding and config.n_step > 1:
+    raise ValueError(f"n_step={config.n_step} cannot be combined with the reward of plug-in "
+                     f"{rewarding[0].name!r} (it rewrites one-step rewards): use n_step=1")
   value = plugin_lib.values  # a plug-in's hyper values: hyper's (grid point) or its defaults
   # what a plug-in sees of a transition's (or a batch's) extras: its own
   seen = lambda p, tr: tr if not extending else tr.replace(extras=tr.extras.get(p.name))
@@ -337,7 +340,12 @@ def make_train(
   def sample_batches(replay, bits):
     """G batches (leading axes (G, B)) and their reparameterisation noise (G, 2, B, A)."""
     bits = bits.reshape(G, n_upd_bits)
-    batches = replay_lib.sample_from_bits(replay, bits[:, :batch_size])
+    if config.n_step == 1:
+      batches = replay_lib.sample_from_bits(replay, bits[:, :batch_size])
+    else:
+      flat = replay_lib.sample_n_step_from_bits(
+          replay, bits[:, :batch_size].reshape(-1), config.n_step, n_envs, config.gamma)
+      batches = jax.tree_util.tree_map(lambda x: x.reshape((G, batch_size) + x.shape[1:]), flat)
     noise = _normal_from_bits(bits[:, batch_size:]).reshape(G, 2, batch_size, A)
     return batches, noise
 
@@ -372,6 +380,7 @@ def make_train(
         obs=f32(obs), action=f32(action), reward=f32(nxt.reward), next_obs=f32(nxt.next_obs),
         discount=f32(nxt.discount) if config.bootstrap_time_limits else 1.0 - f32(nxt.done),
         extras=jax.vmap(extras_fn)(ts.env_state, nxt) if extending else None,
+        done=f32(nxt.done) if config.n_step > 1 else None,
     )
     env_steps = ts.env_steps + n_envs
     aux, aux_metrics = plugins_update(ts.aux, transitions, env_steps, k_aux, hyper)

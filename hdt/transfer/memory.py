@@ -52,14 +52,14 @@ def network_bytes(obs_size: int, action_size: int, config: SACConfig) -> int:
 
 def check_train_memory(env, config: SACConfig, seeds, points: int = 1) -> None:
   """Estimate, per seed (and grid point): the networks (:func:`network_bytes`), the replay buffer (obs,
-  next obs, action, reward, discount in float32), the training env states (~2 copies) and the
+  next obs, action, reward, discount, and done for n-step returns, in float32), the training env states (~2 copies) and the
   evaluation episodes' env states (~4 copies, as hdt.transfer.evaluate counts them)."""
   n = seeds if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool) else \
       (len(seeds) if hasattr(seeds, "__len__") else 1)
   if n <= 0:
     return  # seed_list explains
   n *= points
-  transition = 4 * (2 * env.observation_size + env.action_size + 2)
+  transition = 4 * (2 * env.observation_size + env.action_size + 2 + (getattr(config, "n_step", 1) > 1))
   per_seed = (config.buffer_size * transition + network_bytes(env.observation_size, env.action_size, config)
               + (2 * config.num_envs + 4 * config.num_eval_episodes) * state_bytes(env))
   check_memory(n * per_seed, f"training {n} seeds (networks {list(config.hidden_sizes)}, replay buffer of "

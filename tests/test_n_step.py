@@ -1,0 +1,79 @@
+"""n-step critic targets (SACConfig.n_step): the replay's n-step sample against a brute-force
+reference, and SAC learning with it."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from hdt.agents import replay
+from hdt.agents.plugins import Plugin
+from hdt.agents.sac import SACConfig
+from hdt.agents.train import make_train, run
+from toy_env import PointGoal
+
+
+def _reference(r, d, e, next_obs, t, env, n, gamma):
+  """Walk env ``env``'s steps from ``t`` until n steps or an episode end."""
+  ret = 0.0
+  for j in range(n):
+    ret += gamma ** j * r[t + j, env]
+    if e[t + j, env] or j == n - 1:
+      return ret, gamma ** j * d[t + j, env], next_obs[t + j, env]
+
+
+@pytest.mark.parametrize("cap", [48, 50])  # a multiple of the envs (slice writes) and not (scatter)
+@pytest.mark.parametrize("steps", [5, 20])  # buffer not full; wrapped around twice
+def test_n_step_sample_matches_a_walk_through_each_envs_steps(cap, steps):
+  n_envs, n, gamma = 4, 3, 0.9
+  rng = np.random.default_rng(cap + steps)
+  r = rng.normal(size=(steps, n_envs)).astype(np.float32)
+  e = (rng.random((steps, n_envs)) < 0.25).astype(np.float32)  # episode ends
+  d = np.where(e > 0, (rng.random((steps, n_envs)) < 0.5), 1.0).astype(np.float32)  # time limits keep 1
+  next_obs = rng.normal(size=(steps, n_envs, 2)).astype(np.float32)
+  state = replay.init(cap, replay.make_transition_spec(2, 1, with_done=True))
+  for t in range(steps):
+    state = replay.insert(state, replay.Transition(
+        obs=jnp.full((n_envs, 2), t, jnp.float32) + jnp.arange(n_envs)[:, None] / 10,
+        action=jnp.zeros((n_envs, 1)), reward=r[t], next_obs=next_obs[t], discount=d[t], done=e[t]))
+  total, size = steps * n_envs, int(state.size)
+  starts = size - (n - 1) * n_envs
+  s = jax.jit(replay.sample_n_step_from_bits, static_argnums=(2, 3, 4))(
+      state, jnp.arange(starts, dtype=jnp.uint32), n, n_envs, gamma)
+  for k in range(starts):
+    g = total - size + k  # the k-th oldest row's global index
+    t, env = divmod(g, n_envs)
+    np.testing.assert_allclose(s.obs[k], [t + env / 10] * 2, rtol=1e-6)
+    ret, disc, nxt = _reference(r, d, e, next_obs, t, env, n, gamma)
+    np.testing.assert_allclose(s.reward[k], ret, rtol=1e-5, atol=1e-6, err_msg=f"start {t}, env {env}")
+    np.testing.assert_allclose(s.discount[k], disc, rtol=1e-6, err_msg=f"start {t}, env {env}")
+    np.testing.assert_array_equal(s.next_obs[k], nxt)
+  # a start is never drawn among the newest (n - 1) steps, which lack successors
+  drawn = replay.sample_n_step_from_bits(state, jax.random.bits(jax.random.PRNGKey(0), (4000,), jnp.uint32),
+                                         n, n_envs, gamma)
+  t_drawn = np.floor(np.asarray(drawn.obs[:, 0]))
+  assert t_drawn.max() == steps - n and t_drawn.min() == (total - size) // n_envs
+
+
+def test_n_step_sac_learns_and_one_step_stores_no_done():
+  env = PointGoal()
+  cfg = SACConfig(total_env_steps=5_000, steps_per_chunk=500, learning_starts=300, buffer_size=10_000,
+                  num_eval_episodes=32, num_envs=2, updates_per_step=2, n_step=3)
+  result = run(env, cfg, seeds=[0])
+  dist = result.history["eval/goal_dist_final"][0]
+  assert dist[-1] * 10.0 <= dist[0], dist
+  assert result.state.replay.data.done.shape == (1, 10_000)
+  one_step = jax.eval_shape(make_train(env, dataclasses.replace(cfg, n_step=1)).init, jax.random.PRNGKey(0))
+  assert one_step.replay.data.done is None  # the authors' one-step SAC keeps its replay layout
+
+
+def test_n_step_needs_enough_stored_steps_and_no_reward_plugin():
+  with pytest.raises(ValueError, match=r"n_step=3 needs learning_starts >= n_step \* num_envs = 24"):
+    SACConfig(n_step=3, num_envs=8, learning_starts=20)
+  with pytest.raises(ValueError, match="n_step=0: must be a positive integer"):
+    SACConfig(n_step=0)
+  reward = Plugin(name="disc", reward=lambda aux, batch: batch.reward)
+  with pytest.raises(ValueError, match="cannot be combined with the reward of plug-in 'disc'"):
+    make_train(PointGoal(), SACConfig(n_step=2), plugins=[reward])
