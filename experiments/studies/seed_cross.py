@@ -23,23 +23,24 @@ from hdt.transfer import checkpoint as ckpt
 from hdt.transfer import evaluate as ev
 
 
-def cross(high: str, low: str, task: str, episodes: int) -> np.ndarray:
-  """success[h, l] of HL seed h over LL seed l."""
+def cross(high: str, low: str, task: str, episodes: int) -> tuple[np.ndarray, str]:
+  """(metric[h, l] of HL seed h over LL seed l, the metric's name: the task's own, success or return)."""
   hp, hmetas = ckpt.load_all(high, "final")
   lp, lmetas = ckpt.load_all(low, ev.LOW_PARAMS)
   base = ev.compose(high, low)  # checks the pair and builds the cards
   nh, nl = len(hmetas), len(lmetas)
   take = lambda tree, idx: None if tree is None else jax.tree.map(lambda x: x[idx], tree)
-  out = np.full((nh, nl), np.nan)
+  out, metric = np.full((nh, nl), np.nan), None
   for s in range(nl):
     hi, lo = np.arange(nh), (np.arange(nh) + s) % nl
     pol = dataclasses.replace(base, params=take(hp["policy"], hi), obs_norm=take(hp.get(ckpt.NORM), hi),
                               low_params=take(lp["policy"], lo), low_obs_norm=take(lp.get(ckpt.NORM), lo))
     res = ev.evaluate(pol, task, episodes=episodes)
-    out[hi, lo] = res["per_seed"]["success"]
-    print(f"  {low} shift {s}: " + ", ".join(f"HL{h}/LL{l} {v:.2f}" for h, l, v in zip(hi, lo, out[hi, lo])),
+    metric = res["metric"]
+    out[hi, lo] = res["per_seed"][metric]
+    print(f"  {low} shift {s}: " + ", ".join(f"HL{h}/LL{l} {v:.3g}" for h, l, v in zip(hi, lo, out[hi, lo])),
           flush=True)
-  return out
+  return out, metric
 
 
 def main(argv=None):
@@ -53,18 +54,18 @@ def main(argv=None):
   rows = []
   for spec in args.low:
     name, _, run = spec.partition("=")
-    m = cross(args.high, run, args.task, args.episodes)
-    rows += [dict(low=name, hl_seed=h, ll_seed=l, success=f"{m[h, l]:.4f}") for h in range(m.shape[0])
+    m, metric = cross(args.high, run, args.task, args.episodes)
+    rows += [dict(low=name, hl_seed=h, ll_seed=l, metric=metric, value=f"{m[h, l]:.4f}") for h in range(m.shape[0])
              for l in range(m.shape[1])]
-    cells = {(f"LL seed {l}", f"HL seed {h}"): (m[h, l], 0.0, "success") for h in range(m.shape[0])
+    cells = {(f"LL seed {l}", f"HL seed {h}"): (m[h, l], 0.0, metric) for h in range(m.shape[0])
              for l in range(m.shape[1])}
     plots.heatmap(dict(rows=[f"LL seed {l}" for l in range(m.shape[1])], cols=[f"HL seed {h}" for h in range(m.shape[0])],
                        cells=cells, task=args.task), f"{args.out}_{name}.png",
-                  title=f"{args.task}: HL {args.high} over LL {name} ({run}), success per seed pair",
+                  title=f"{args.task}: HL {args.high} over LL {name} ({run}), {metric} per seed pair",
                   xlabel=f"seed of the HL ({args.high})", ylabel=f"seed of the LL ({name})")
     print(f"{name}: mean {np.mean(m):.3f}; per LL seed {np.round(m.mean(0), 3).tolist()}; "
           f"per HL seed {np.round(m.mean(1), 3).tolist()}", flush=True)
-  write_csv(Path(args.out + ".csv"), ("low", "hl_seed", "ll_seed", "success"), rows)
+  write_csv(Path(args.out + ".csv"), ("low", "hl_seed", "ll_seed", "metric", "value"), rows)
 
 
 if __name__ == "__main__":
