@@ -910,10 +910,15 @@ def _resume_hint() -> str:
   ckpt = sys.modules.get("hdt.transfer.checkpoint")
   if run is not None and ckpt is not None and ckpt.has_state(run):
     try:
-      steps = ckpt.load_state_info(run).get("env_steps", "?")
+      info = ckpt.load_state_info(run)
     except (ValueError, OSError):
-      steps = "?"
-    return f"{run} keeps its last saved training state ({steps} env steps): run the same command with --resume to continue"
+      info = {}
+    steps, meta = info.get("env_steps", "?"), info.get("meta") or {}
+    # a run whose schedules do not scale with the budget can also end at its last save
+    end = (f", or with --resume --total-env-steps {steps} to end it there"
+           if isinstance(steps, int) and steps > 0 and not {"aligned_to", "finetuned_from"} & set(meta) else "")
+    return (f"{run} keeps its last saved training state ({steps} env steps): run the same command with --resume to "
+            f"continue{end}")
   rundir = sys.modules.get("hdt.transfer.rundir")
   if run is not None and run.exists() and rundir.owner_kind(run) == "run":
     return f"{run} holds no saved training state yet: run the same command with --overwrite to start again"

@@ -542,7 +542,13 @@ def test_ctrl_c_or_sigterm_saves_the_chunk_under_way_and_exits_with_a_resume_hin
   assert lines[0].startswith("hdt: interrupted;") and "--resume" in lines[0] and str(out) in lines[0]
   assert ckpt.has_state(out) and not list(out.glob(".*.tmp")) and "Failed to import" not in rest
   assert not (out / "meta.json").exists() and (out / "metrics.csv").exists()  # unfinished, its curves so far kept
-  assert ckpt.load_state_info(out)["env_steps"] >= at and f"({ckpt.load_state_info(out)['env_steps']} env steps)" in lines[0]
+  steps = ckpt.load_state_info(out)["env_steps"]
+  assert steps >= at and f"({steps} env steps)" in lines[0]
+  assert f"or with --resume --total-env-steps {steps} to end it there" in lines[0]
+  if sig == signal.SIGTERM:  # the hint's second command ends the run at its save, whole
+    done = subprocess.run(argv[:-1] + [str(steps), "--resume"], capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert (out / "meta.json").exists() and ckpt.load_state_info(out)["env_steps"] == steps
 
 
 @pytest.mark.parametrize("after", [0.3, 1.0])
