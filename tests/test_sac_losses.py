@@ -287,6 +287,25 @@ def test_full_update_first_adam_step_and_target():
   np.testing.assert_allclose(float(metrics["alpha"]), np.exp(float(new.log_alpha)), rtol=1e-6)
 
 
+def test_critic_only_update_is_the_full_updates_critic_and_target_step():
+  """update(..., actor=False) (SACConfig.policy_delay) steps the critics and their targets exactly as a
+  whole update does and leaves the actor, the temperature and their optimisers alone."""
+  cfg = SACConfig(actor_lr=1e-2, critic_lr=2e-2, alpha_lr=3e-2, tau=0.1, gamma=GAMMA,
+                  reward_scale=REWARD_SCALE, target_entropy=TARGET_ENTROPY, batch_size=B)
+  noise = np.stack([EPS, EPS[::-1]])
+  update, state = make_update(STUB, cfg, ACT), stub_state(cfg)
+  whole, _ = jax.jit(update)(state, to_j(BATCH), noise)
+  critic, metrics = jax.jit(lambda s, b, e: update(s, b, e, actor=False))(state, to_j(BATCH), noise)
+  for name in ("q_params", "target_q_params", "q_opt_state", "update_steps"):
+    for a, b in zip(jax.tree_util.tree_leaves(getattr(critic, name)), jax.tree_util.tree_leaves(getattr(whole, name))):
+      np.testing.assert_array_equal(a, b, err_msg=name)
+  for name in ("policy_params", "policy_opt_state", "log_alpha", "alpha_opt_state"):
+    for a, b in zip(jax.tree_util.tree_leaves(getattr(critic, name)), jax.tree_util.tree_leaves(getattr(state, name))):
+      np.testing.assert_array_equal(a, b, err_msg=name)
+  assert not np.allclose(whole.policy_params["W"], state.policy_params["W"])  # the whole update moved it
+  assert set(metrics) == {"critic_loss"}
+
+
 def test_reward_fn_plugin_replaces_rewards():
   cfg = SACConfig(batch_size=B, gamma=GAMMA, reward_scale=REWARD_SCALE)
   seen = {}

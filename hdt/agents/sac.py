@@ -88,6 +88,9 @@ class SACConfig:
   # Critic targets from n-step returns (sampled as in Rainbow and DrQ-v2, no off-policy correction);
   # 1 is plain SAC, the authors'.
   n_step: int = 1
+  # The actor and temperature step once every policy_delay gradient updates, the critics and their
+  # targets every update (SBX's SAC policy_delay; TD3's delay): fewer updates' worth of compute.
+  policy_delay: int = 1
 
   def __post_init__(self):
     # Plain Python numbers (numpy ones, e.g. an np.int64 budget, are accepted) and tuples, so the
@@ -147,7 +150,7 @@ class SACConfig:
     need(self.target_entropy is None or _is_number(self.target_entropy),
          f"target_entropy={self.target_entropy!r}: must be a number or None (-action_size)")
     for name in ("batch_size", "buffer_size", "updates_per_step", "num_envs", "steps_per_chunk",
-                 "num_eval_episodes", "total_env_steps", "n_step"):
+                 "num_eval_episodes", "total_env_steps", "n_step", "policy_delay"):
       v = getattr(self, name)
       need(_is_int(v) and v > 0, f"{name}={v!r}: must be a positive integer")
       need(not _is_int(v) or v < MAX_COUNT,
@@ -173,6 +176,11 @@ class SACConfig:
         self.n_step == 1 or self.learning_starts >= self.n_step * self.num_envs,
         f"n_step={self.n_step} needs learning_starts >= n_step * num_envs = {self.n_step * self.num_envs} "
         f"(got {self.learning_starts}): an n-step return needs n stored steps of each env",
+    )
+    need(
+        self.updates_per_step % self.policy_delay == 0,
+        f"policy_delay={self.policy_delay} must divide updates_per_step={self.updates_per_step}: the actor steps "
+        f"at fixed places among each training step's updates",
     )
     need(0.0 < self.tau <= 1.0, f"tau={self.tau}: must be in (0, 1], e.g. 0.005")
     need(0.0 <= self.gamma <= 1.0, f"gamma={self.gamma}: must be in [0, 1], e.g. 0.99")
@@ -216,7 +224,7 @@ MAX_COUNT = 2**31  # step counters and buffer indices are int32
 
 # SACConfig fields added after runs were saved without them, at the behaviour those runs had: a
 # saved state missing a field resumes under this value (hdt.transfer.runner).
-ADDED_FIELDS = {"bootstrap_time_limits": True, "critic_layer_norm": False, "n_step": 1}
+ADDED_FIELDS = {"bootstrap_time_limits": True, "critic_layer_norm": False, "n_step": 1, "policy_delay": 1}
 
 
 def _is_int(v) -> bool:
@@ -405,7 +413,8 @@ def make_update(
     actor_regularizer: ActorRegularizer | None = None,
     reward_fn: RewardFn | None = None,
 ):
-  """Returns ``update(state, batch, noise, aux_state=None, hyper=None) -> (state, metrics)``.
+  """Returns ``update(state, batch, noise, aux_state=None, hyper=None, actor=True) -> (state, metrics)``;
+  with ``actor=False`` (a Python bool) the critic and target steps only (metrics of those only).
 
   ``noise``: standard-normal array of shape ``(2, batch, action_size)``, the reparameterisation
   noise of the critic target's next action (``noise[0]``) and of the actor loss (``noise[1]``),
@@ -418,7 +427,7 @@ def make_update(
   actor's log-probs), then the soft target update. With ``networks.value_net`` (SB2) the actor's loss
   is taken at the critics before their step, and the critic loss's V target uses the actor's noise.
   """
-  def update(state: SACState, batch: Transition, noise, aux_state=None, hyper=None):
+  def update(state: SACState, batch: Transition, noise, aux_state=None, hyper=None, actor: bool = True):
     h = hyperparams(config, hyper)
     target_entropy = h["target_entropy"]
     if target_entropy is None:
@@ -441,6 +450,10 @@ def make_update(
     )
     upd, q_opt_state = q_opt.update(g, state.q_opt_state, state.q_params)
     q_params = optax.apply_updates(state.q_params, upd)
+    target_q_params = soft_update(state.target_q_params, target_part(networks, q_params), h["tau"])
+    if not actor:
+      return state.replace(q_params=q_params, target_q_params=target_q_params, q_opt_state=q_opt_state,
+                           update_steps=state.update_steps + 1), {"critic_loss": c_loss}
 
     (a_loss, a_aux), g = actor_grad(
         state.policy_params, state.q_params if networks.value_net else q_params, state.log_alpha,
@@ -453,7 +466,6 @@ def make_update(
     upd, alpha_opt_state = a_opt.update(g, state.alpha_opt_state, state.log_alpha)
     log_alpha = optax.apply_updates(state.log_alpha, upd)
 
-    target_q_params = soft_update(state.target_q_params, target_part(networks, q_params), h["tau"])
     new_state = SACState(
         policy_params=policy_params,
         q_params=q_params,

@@ -353,11 +353,23 @@ def make_train(
     update = make_update_with(aux, reg_weights, hyper)
     sac_hyper = None if hyper is None else {k: v for k, v in hyper.items() if k in SWEEPABLE}
 
+    d = config.policy_delay
+
     def one(agent, xs):
       batch, eps = xs
       return update(agent, batch, eps, aux, sac_hyper)
 
-    agent, m = jax.lax.scan(one, agent, (batches, noise))
+    def group(agent, xs):  # d - 1 critic-only updates, then a whole one (static: no cond under vmap)
+      pick = lambda i: jax.tree_util.tree_map(lambda x: x[i], xs)
+      for i in range(d - 1):
+        agent, _ = update(agent, *pick(i), aux, sac_hyper, actor=False)
+      return one(agent, pick(d - 1))
+
+    if d == 1:
+      agent, m = jax.lax.scan(one, agent, (batches, noise))
+    else:
+      grouped = jax.tree_util.tree_map(lambda x: x.reshape((G // d, d) + x.shape[1:]), (batches, noise))
+      agent, m = jax.lax.scan(group, agent, grouped)
     return agent, jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), m)
 
   def train_step(ts: TrainState, hyper):

@@ -1,5 +1,5 @@
-"""n-step critic targets (SACConfig.n_step): the replay's n-step sample against a brute-force
-reference, and SAC learning with it."""
+"""SAC's sample-efficiency options: n-step critic targets (SACConfig.n_step; the replay's n-step sample
+against a brute-force reference) and the delayed actor (SACConfig.policy_delay); SAC learns with each."""
 
 import dataclasses
 
@@ -77,3 +77,26 @@ def test_n_step_needs_enough_stored_steps_and_no_reward_plugin():
   reward = Plugin(name="disc", reward=lambda aux, batch: batch.reward)
   with pytest.raises(ValueError, match="cannot be combined with the reward of plug-in 'disc'"):
     make_train(PointGoal(), SACConfig(n_step=2), plugins=[reward])
+
+
+def _adam_counts(opt_state) -> set:
+  return {int(x) for x in jax.tree_util.tree_leaves(opt_state) if getattr(x, "dtype", None) == jnp.int32}
+
+
+def test_policy_delay_steps_the_actor_and_temperature_once_every_d_updates():
+  env = PointGoal()
+  cfg = SACConfig(total_env_steps=4_000, steps_per_chunk=500, learning_starts=300, buffer_size=10_000,
+                  num_eval_episodes=32, num_envs=2, updates_per_step=4, policy_delay=2)
+  result = run(env, cfg, seeds=[0])
+  dist = result.history["eval/goal_dist_final"][0]
+  assert dist[-1] * 10.0 <= dist[0], dist
+  agent = jax.tree_util.tree_map(lambda x: x[0], result.state.agent)
+  updates = int(agent.update_steps)
+  assert updates == 4 * ((4_000 - 300) // 2 + 1)  # 4 per training step from learning_starts on
+  assert _adam_counts(agent.q_opt_state) == {updates}
+  assert _adam_counts(agent.policy_opt_state) == _adam_counts(agent.alpha_opt_state) == {updates // 2}
+
+
+def test_policy_delay_must_divide_the_updates_of_a_training_step():
+  with pytest.raises(ValueError, match="policy_delay=3 must divide updates_per_step=8"):
+    SACConfig(policy_delay=3, updates_per_step=8)
