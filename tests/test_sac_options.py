@@ -57,15 +57,20 @@ def test_n_step_sample_matches_a_walk_through_each_envs_steps(cap, steps):
   assert t_drawn.max() == steps - n and t_drawn.min() == (total - size) // n_envs
 
 
-def test_n_step_sac_learns_and_one_step_stores_no_done():
-  env = PointGoal()
-  cfg = SACConfig(total_env_steps=5_000, steps_per_chunk=500, learning_starts=300, buffer_size=10_000,
-                  num_eval_episodes=32, num_envs=2, updates_per_step=2, n_step=3)
-  result = run(env, cfg, seeds=[0])
+def _learns(total: int, **option):
+  """(config, result) of a toy run with ``option``, checked to cut the final goal distance >= 10x."""
+  cfg = SACConfig(total_env_steps=total, steps_per_chunk=500, learning_starts=300, buffer_size=10_000,
+                  num_eval_episodes=32, num_envs=2, **option)
+  result = run(PointGoal(), cfg, seeds=[0])
   dist = result.history["eval/goal_dist_final"][0]
   assert dist[-1] * 10.0 <= dist[0], dist
+  return cfg, result
+
+
+def test_n_step_sac_learns_and_one_step_stores_no_done():
+  cfg, result = _learns(5_000, updates_per_step=2, n_step=3)
   assert result.state.replay.data.done.shape == (1, 10_000)
-  one_step = jax.eval_shape(make_train(env, dataclasses.replace(cfg, n_step=1)).init, jax.random.PRNGKey(0))
+  one_step = jax.eval_shape(make_train(PointGoal(), dataclasses.replace(cfg, n_step=1)).init, jax.random.PRNGKey(0))
   assert one_step.replay.data.done is None  # the authors' one-step SAC keeps its replay layout
 
 
@@ -84,12 +89,7 @@ def _adam_counts(opt_state) -> set:
 
 
 def test_policy_delay_steps_the_actor_and_temperature_once_every_d_updates():
-  env = PointGoal()
-  cfg = SACConfig(total_env_steps=4_000, steps_per_chunk=500, learning_starts=300, buffer_size=10_000,
-                  num_eval_episodes=32, num_envs=2, updates_per_step=4, policy_delay=2)
-  result = run(env, cfg, seeds=[0])
-  dist = result.history["eval/goal_dist_final"][0]
-  assert dist[-1] * 10.0 <= dist[0], dist
+  _, result = _learns(4_000, updates_per_step=4, policy_delay=2)
   agent = jax.tree_util.tree_map(lambda x: x[0], result.state.agent)
   updates = int(agent.update_steps)
   assert updates == 4 * ((4_000 - 300) // 2 + 1)  # 4 per training step from learning_starts on
