@@ -129,17 +129,17 @@ def sample_n_step_from_bits(state: ReplayState, bits: jax.Array, n: int, stride:
   # alive[:, j]: step j belongs to the start's episode (no end among steps 0..j-1)
   alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(done[:, :1]), 1.0 - done[:, :-1]], axis=1), axis=1)
   powers = jnp.asarray(gamma, jnp.float32) ** jnp.arange(n, dtype=jnp.float32)
-  m = jnp.sum(alive, axis=1).astype(jnp.int32)  # steps kept, 1..n
-  last = m - 1
+  last = jnp.sum(alive, axis=1).astype(jnp.int32) - 1  # the last step kept, 0..n-1
+  at_last = lambda x: jnp.take_along_axis(x, last[:, None], axis=1)[:, 0]
   first = rows[:, 0]
   return Transition(
       obs=_take_rows(data.obs, first),
       action=_take_rows(data.action, first),
       reward=jnp.sum(alive * powers * reward, axis=1),
-      next_obs=_take_rows(data.next_obs, jnp.take_along_axis(rows, last[:, None], axis=1)[:, 0]),
-      discount=powers[last] * jnp.take_along_axis(discount, last[:, None], axis=1)[:, 0],
+      next_obs=_take_rows(data.next_obs, at_last(rows)),
+      discount=powers[last] * at_last(discount),
       extras=None if data.extras is None else jax.tree_util.tree_map(lambda x: _take_rows(x, first), data.extras),
-      done=jnp.take_along_axis(done, last[:, None], axis=1)[:, 0],
+      done=at_last(done),
   )
 
 
