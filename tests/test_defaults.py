@@ -163,6 +163,9 @@ def test_fast_is_the_setting_the_zoos_legged_lls_were_trained_with():
     verb = ["align", "--imitate", "x"] if command[1] == "align" else ["train", "low"]
     argv = verb + ["--agent", command[command.index("--agent") + 1], "--preset", "paper", "--fast",
                    "--total-env-steps", str(recorded["total_env_steps"])]
+    for option in ("--policy-delay", "--n-step"):  # options beyond --fast, as the command gave them
+      if option in command:
+        argv += command[command.index(option):command.index(option) + 2]
     got = dataclasses.asdict(cli.sac_config(cli.build_parser().parse_args(argv), "low", entry.parent.name))
     want = dataclasses.asdict(SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in recorded.items()
                                            if k != "budget_unit"}))
