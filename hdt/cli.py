@@ -914,9 +914,11 @@ def _resume_hint() -> str:
     except (ValueError, OSError):
       info = {}
     steps, meta = info.get("env_steps", "?"), info.get("meta") or {}
-    # a run whose schedules do not scale with the budget can also end at its last save
+    # a run whose schedules do not scale with the budget (Stage.extendable) can also end at its last save;
+    # a state saved before that was recorded: the stages with such schedules align or finetune
+    extendable = info.get("extendable", not {"aligned_to", "finetuned_from"} & set(meta))
     end = (f", or with --resume --total-env-steps {steps} to end it there"
-           if isinstance(steps, int) and steps > 0 and not {"aligned_to", "finetuned_from"} & set(meta) else "")
+           if isinstance(steps, int) and steps > 0 and extendable is True else "")
     return (f"{run} keeps its last saved training state ({steps} env steps): run the same command with --resume to "
             f"continue{end}")
   rundir = sys.modules.get("hdt.transfer.rundir")

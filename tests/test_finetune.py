@@ -6,11 +6,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from hdt import cli
 from hdt.agents import networks as nets
 from hdt.agents import train as sac_train
 from hdt.agents.kl import linear_anneal, make_kl_regularizer
 from hdt.transfer import checkpoint as ckpt
-from hdt.transfer import configs
+from hdt.transfer import configs, rundir
 from hdt.transfer.finetune import FinetuneSpec, finetune_high
 from hdt.transfer.pipeline import high_env, train_high
 from hdt.transfer.runner import RunOptions
@@ -352,7 +353,7 @@ def test_plain_finetuning_keeps_a_s_learning_rate_and_kl_finetuning_takes_the_ta
     assert cfg.actor_lr == want and cfg.critic_lr == a["critic_lr"]
 
 
-def test_plain_finetuning_extends_its_budget_on_resume_and_kl_finetuning_refuses(pm_runs, tmp_path):
+def test_plain_finetuning_extends_its_budget_on_resume_and_kl_finetuning_refuses(pm_runs, tmp_path, monkeypatch):
   """Without the KL plug-in nothing follows the budget, so a finished plain finetuning run resumed with a
   larger one equals a run of that budget from the start; the KL weight's anneal is a fraction of the
   budget, so a KL run keeps its own."""
@@ -372,3 +373,9 @@ def test_plain_finetuning_extends_its_budget_on_resume_and_kl_finetuning_refuses
   ft(small, "kl", kl=1.0)
   with pytest.raises(ckpt.CheckpointError, match="resume with --total-env-steps 400"):
     ft(big, "kl", kl=1.0, resume=True)
+  # the state records it, and the Ctrl-C hint offers ending at the last save only where a resume may
+  for run, extendable in (("plain", True), ("kl", False)):
+    info = ckpt.load_state_info(tmp_path / run)
+    assert info["extendable"] is extendable
+    monkeypatch.setattr(rundir, "LAST_CLAIMED", [tmp_path / run])
+    assert (f"--resume --total-env-steps {info['env_steps']} to end it there" in cli._resume_hint()) is extendable

@@ -218,7 +218,8 @@ def run_points(stage: Stage, points: list, options: RunOptions = RunOptions()) -
         def save():
           for p, (run_dir, _) in enumerate(outputs):
             if run_dir is not None:
-              ckpt.save_state(run_dir, part(ts, p), part(hist, p), dict(infos[p], env_steps=step),
+              ckpt.save_state(run_dir, part(ts, p), part(hist, p),
+                              dict(infos[p], env_steps=step, extendable=stage.extendable),
                               None if best is None else part(best, p))
               write_metrics_csv(run_dir / "metrics.csv", part(hist, p), seeds)  # curves while it runs
         with interrupt.deferred():
