@@ -11,7 +11,7 @@ import pytest
 from hdt.agents import replay
 from hdt.agents.plugins import Plugin
 from hdt.agents.sac import SACConfig
-from hdt.agents.train import make_train, run
+from hdt.agents.train import delayed_actor_group, make_train, run
 from toy_env import PointGoal
 
 
@@ -100,3 +100,12 @@ def test_policy_delay_steps_the_actor_and_temperature_once_every_d_updates():
 def test_policy_delay_must_divide_the_updates_of_a_training_step():
   with pytest.raises(ValueError, match="policy_delay=3 must divide updates_per_step=8"):
     SACConfig(policy_delay=3, updates_per_step=8)
+
+
+def test_a_delayed_actor_group_runs_the_critic_alone_first_and_logs_the_critic_over_all_its_updates():
+  def update(agent, x, actor=True):  # agent: the order of calls; a metric per step kind
+    m = {"critic_loss": x}
+    return agent + [(float(x), actor)], (dict(m, actor_loss=10 * x) if actor else m)
+  agent, m = delayed_actor_group(update, 3)([], jnp.array([1.0, 2.0, 6.0]))
+  assert agent == [(1.0, False), (2.0, False), (6.0, True)]
+  assert float(m["critic_loss"]) == 3.0 and float(m["actor_loss"]) == 60.0

@@ -223,6 +223,21 @@ def make_networks(env, config: SACConfig) -> nets.SACNetworks:
       value_net=config.value_net, critic_layer_norm=config.critic_layer_norm)
 
 
+def delayed_actor_group(update, d: int):
+  """``group(agent, xs) -> (agent, metrics)``: ``d`` updates on ``xs`` (leading axis d), d - 1 of the critic
+  only, then a whole one, unrolled (static: vmapped seeds really skip the actor, no cond). ``update(agent,
+  xs_i, actor=)``. The critic's metrics average the d updates; the others are the one that stepped the actor."""
+  def group(agent, xs):
+    pick = lambda i: jax.tree_util.tree_map(lambda x: x[i], xs)
+    critic = []
+    for i in range(d - 1):
+      agent, m = update(agent, pick(i), actor=False)
+      critic.append(m)
+    agent, m = update(agent, pick(d - 1))
+    return agent, dict(m, **{k: jnp.mean(jnp.stack([c[k] for c in critic] + [m[k]]), axis=0) for k in critic[0]})
+  return group
+
+
 def make_train(
     env,
     config: SACConfig,
@@ -355,21 +370,15 @@ def make_train(
 
     d = config.policy_delay
 
-    def one(agent, xs):
+    def one(agent, xs, actor=True):
       batch, eps = xs
-      return update(agent, batch, eps, aux, sac_hyper)
-
-    def group(agent, xs):  # d - 1 critic-only updates, then a whole one (static: no cond under vmap)
-      pick = lambda i: jax.tree_util.tree_map(lambda x: x[i], xs)
-      for i in range(d - 1):
-        agent, _ = update(agent, *pick(i), aux, sac_hyper, actor=False)
-      return one(agent, pick(d - 1))
+      return update(agent, batch, eps, aux, sac_hyper, actor=actor)
 
     if d == 1:
       agent, m = jax.lax.scan(one, agent, (batches, noise))
     else:
       grouped = jax.tree_util.tree_map(lambda x: x.reshape((G // d, d) + x.shape[1:]), (batches, noise))
-      agent, m = jax.lax.scan(group, agent, grouped)
+      agent, m = jax.lax.scan(delayed_actor_group(one, d), agent, grouped)
     return agent, jax.tree_util.tree_map(lambda x: jnp.mean(x, axis=0), m)
 
   def train_step(ts: TrainState, hyper):
