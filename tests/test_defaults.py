@@ -150,7 +150,8 @@ def test_kl_term_is_logged_as_kl():
 
 def test_fast_is_the_setting_the_zoos_legged_lls_were_trained_with():
   """`--fast` on top of `--preset paper` gives, field for field, the SAC config each zoo LL named
-  *_fast_* records (their commands spelled the options out); options given win, HLs refuse it."""
+  *_fast_* records (their commands spelled the options out, and any SAC option beyond --fast); options given
+  win, HLs refuse it."""
   import json
 
   from hdt.agents.sac import SACConfig
@@ -163,7 +164,7 @@ def test_fast_is_the_setting_the_zoos_legged_lls_were_trained_with():
     verb = ["align", "--imitate", "x"] if command[1] == "align" else ["train", "low"]
     argv = verb + ["--agent", command[command.index("--agent") + 1], "--preset", "paper", "--fast",
                    "--total-env-steps", str(recorded["total_env_steps"])]
-    for option in ("--policy-delay", "--n-step"):  # options beyond --fast, as the command gave them
+    for option in ("--policy-delay", "--n-step", "--updates-per-step"):  # options beyond --fast, as the command gave them
       if option in command:
         argv += command[command.index(option):command.index(option) + 2]
     got = dataclasses.asdict(cli.sac_config(cli.build_parser().parse_args(argv), "low", entry.parent.name))
