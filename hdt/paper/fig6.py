@@ -21,7 +21,7 @@ PANELS = {"ant_waypoint": ("ant", "waypoint", (), "Ant Waypoint (return)", "483 
                             "full": "ant/full_maze_end_96k"}),
           "ant_maze_sample": ("ant", "maze", (("goal", "sample"),), "Ant Maze Sample (success)", ".62 ± .04",
                               {"finetune_kl": "ant/maze_sample_ft_kl_from_pm_200k",
-                               "finetune": "ant/maze_sample_ft_from_pm_200k", "scratch": "ant/maze_200k",
+                               "finetune": "ant/maze_sample_ft_from_pm_200k", "scratch": "ant/maze_400k",
                                "full": "ant/full_maze_sample_96k"}),
           "quadruped_maze_sample": ("quadruped", "maze", (("goal", "sample"),), "Quadruped Maze Sample (success)",
                                     ".78 ± .08", {"finetune_kl": "quadruped/maze_sample_ft_kl_from_pm_200k",

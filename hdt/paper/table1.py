@@ -18,7 +18,7 @@ ZOO_LOW = {"point": "point/low", **LEGGED_LOW,
            ("arm3", "insert"): "arm3/low_insert", ("arm4", "insert"): "arm4/low_insert_1p2m"}
 ZOO_HIGH = {("point", "waypoint"): "point/waypoint", ("point", "maze"): "point/maze",
             ("ant", "waypoint"): "ant/waypoint_200k", ("ant3", "waypoint"): "ant3/waypoint_200k",
-            ("ant", "maze"): "ant/maze_200k", ("quadruped", "waypoint"): "quadruped/waypoint_200k",
+            ("ant", "maze"): "ant/maze_400k", ("quadruped", "waypoint"): "quadruped/waypoint_200k",
             ("ant2", "waypoint"): "ant2/waypoint_200k",
             ("arm_point", "push1"): "arm_point/push1_1p2m", ("arm2", "push1"): "arm2/push1_500k",
             ("arm3", "push1"): "arm3/push1_500k", ("arm4", "push1"): "arm4/push1_500k",
