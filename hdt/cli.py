@@ -915,7 +915,8 @@ def _resume_hint() -> str:
       info = {}
     steps, meta = info.get("env_steps", "?"), info.get("meta") or {}
     # a run whose schedules do not scale with the budget (Stage.extendable) can also end at its last save;
-    # a state saved before that was recorded: the stages with such schedules align or finetune
+    # a state saved before it was recorded: not offered for align and finetune runs (KL finetuning and
+    # alignment have such schedules; plain finetuning has none, but meta.json alone cannot tell)
     extendable = info.get("extendable", not {"aligned_to", "finetuned_from"} & set(meta))
     end = (f", or with --resume --total-env-steps {steps} to end it there"
            if isinstance(steps, int) and steps > 0 and extendable is True else "")
