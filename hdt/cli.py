@@ -421,7 +421,8 @@ def _finish(res, args):
   print(f"{res.run_dir}: final evaluation {summary}")
   if res.best is not None:  # kept beside the final parameters (seed_<i>/best/, `hdt eval --params best`)
     best = ", ".join(f"{r:.3g} at {s}" for r, s in zip(res.best["return"], res.best["env_steps"]))
-    print(f"{res.run_dir}: best evaluation per seed (return at env step) {best}")
+    by = res.card.sac.get("best_by", "return")
+    print(f"{res.run_dir}: best evaluation per seed ({by} at env step) {best}")
   return 0
 
 

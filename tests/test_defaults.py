@@ -157,6 +157,8 @@ def test_fast_is_the_setting_the_zoos_legged_lls_were_trained_with():
   from hdt.agents.sac import SACConfig
   from hdt.transfer import names
   entries = sorted(p.parent for p in names.ZOO_DIR.glob("*/*fast*/config.json"))
+  sac_options = {f.name: f"--{f.name.replace('_', '-')}" for f in dataclasses.fields(SACConfig)
+                 if f.name != "total_env_steps"}
   assert len(entries) >= 6
   for entry in entries:
     recorded = json.loads((entry / "config.json").read_text())
@@ -164,9 +166,15 @@ def test_fast_is_the_setting_the_zoos_legged_lls_were_trained_with():
     verb = ["align", "--imitate", "x"] if command[1] == "align" else ["train", "low"]
     argv = verb + ["--agent", command[command.index("--agent") + 1], "--preset", "paper", "--fast",
                    "--total-env-steps", str(recorded["total_env_steps"])]
-    for option in ("--policy-delay", "--n-step", "--updates-per-step"):  # options beyond --fast, as the command gave them
+    for field, option in sac_options.items():  # SAC options the command gave beyond --fast, or against it
       if option in command:
-        argv += command[command.index(option):command.index(option) + 2]
+        i = command.index(option)
+        given = command[i:i + 1 + next((j for j, t in enumerate(command[i + 1:]) if t.startswith("--")),
+                                       len(command) - i - 1)]
+        value = cli._overrides(cli.build_parser().parse_args(["train", "low", "--agent", "ant"] + given),
+                               SACConfig, "")[field]
+        if field not in configs.FAST_LOW or value != configs.FAST_LOW[field]:
+          argv += given
     got = dataclasses.asdict(cli.sac_config(cli.build_parser().parse_args(argv), "low", entry.parent.name))
     want = dataclasses.asdict(SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in recorded.items()
                                            if k != "budget_unit"}))

@@ -157,16 +157,19 @@ def test_best_evaluation_params_survive_resume(uninterrupted, resumed):
     assert ckpt.load(resumed.run_dir, i)[1]["params"] == "final"
 
 
-def test_best_params_are_those_of_the_best_evaluation(tmp_path):
-  """update_best keeps, per seed, exactly the params evaluated at the highest mean eval return."""
-  cfg = dataclasses.replace(CFG, total_env_steps=600)
+# any metric of the evaluation can pick (the toy env's only one is a distance, so here the farthest wins)
+@pytest.mark.parametrize("best_by", ["return", "goal_dist_final"])
+def test_best_params_are_those_of_the_best_evaluation(best_by, tmp_path):
+  """update_best keeps, per seed, exactly the params evaluated at the highest mean of the best_by metric."""
+  cfg = dataclasses.replace(CFG, total_env_steps=600, best_by=best_by)
   seen = {}
 
   def on_chunk(step, ts, hist, best):
     seen[step] = jax.device_get({"policy": ts.agent.policy_params, "q": ts.agent.q_params})
 
   res = sac_train.run(ENV, cfg, [0, 3], on_chunk=on_chunk)
-  ev, steps = res.history["eval/return"][:, 1:], res.history["eval/env_steps"][:, 1:]
+  ev, steps = res.history[f"eval/{best_by}"][:, 1:], res.history["eval/env_steps"][:, 1:]
+  assert not np.array_equal(np.argmax(ev, 1), np.argmax(res.history["eval/return"][:, 1:], 1)) or best_by == "return"
   for i in range(2):
     at = int(steps[i, np.argmax(ev[i])])
     assert res.best["env_steps"][i] == at and res.best["return"][i] == ev[i].max()
@@ -175,6 +178,12 @@ def test_best_params_are_those_of_the_best_evaluation(tmp_path):
   # the record only moves up, and a NaN score never wins
   nan = sac_train.update_best(res.best, seen[at], np.array([np.nan, -np.inf]), 10**6)
   assert_trees_equal(nan, res.best)
+
+
+def test_a_best_by_metric_the_evaluation_lacks_is_refused_at_the_first_evaluation():
+  with pytest.raises(ValueError, match=r"best_by='success_max': this env's evaluation has no such metric; use one of "
+                                       r".*goal_dist_final.*return"):
+    sac_train.run(ENV, dataclasses.replace(CFG, total_env_steps=100, best_by="success_max"), [0])
 
 
 def test_same_config_and_seed_give_identical_metrics(uninterrupted, tmp_path):

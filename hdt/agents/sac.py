@@ -91,6 +91,10 @@ class SACConfig:
   # The actor and temperature step once every policy_delay gradient updates, the critics and their
   # targets every update (SBX's SAC policy_delay; TD3's delay): fewer updates' worth of compute.
   policy_delay: int = 1
+  # The eval metric whose highest mean keeps a seed's best parameters: "return", as the authors'
+  # trainer.py callback, or another of the env's (e.g. "success_max", which tracks a reach LL's
+  # success more closely than its return does).
+  best_by: str = "return"
 
   def __post_init__(self):
     # Plain Python numbers (numpy ones, e.g. an np.int64 budget, are accepted) and tuples, so the
@@ -202,6 +206,8 @@ class SACConfig:
         self.target_entropy is None or math.isfinite(self.target_entropy),
         f"target_entropy={self.target_entropy}: must be finite or None (-action_size)",
     )
+    need(isinstance(self.best_by, str) and self.best_by.strip() == self.best_by and self.best_by != "",
+         f"best_by={self.best_by!r}: name an evaluation metric, e.g. 'return' or 'success_max'")
     if errors:
       raise ValueError("invalid SACConfig:\n  " + "\n  ".join(errors))
 
@@ -224,7 +230,8 @@ MAX_COUNT = 2**31  # step counters and buffer indices are int32
 
 # SACConfig fields added after runs were saved without them, at the behaviour those runs had: a
 # saved state missing a field resumes under this value (hdt.transfer.runner).
-ADDED_FIELDS = {"bootstrap_time_limits": True, "critic_layer_norm": False, "n_step": 1, "policy_delay": 1}
+ADDED_FIELDS = {"bootstrap_time_limits": True, "critic_layer_norm": False, "n_step": 1, "policy_delay": 1,
+                "best_by": "return"}
 
 
 def _is_int(v) -> bool:

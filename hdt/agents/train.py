@@ -496,13 +496,17 @@ class RunResult(NamedTuple):
 
 
 # Model selection as the authors did (bot_transfer/utils/trainer.py callback): after each periodic
-# evaluation, a seed whose mean deterministic eval return beats its best so far keeps those params.
-BEST_CRITERION = "eval/return"
+# evaluation, a seed whose mean deterministic eval return (SACConfig.best_by) beats its best so far
+# keeps those params.
+def best_criterion(config: SACConfig) -> str:
+  """The history key whose per-seed mean picks the best parameters."""
+  return f"eval/{config.best_by}"
 
 
 def empty_best(params: dict) -> dict:
   """The best-so-far record before any evaluation: ``params`` (:func:`saved_params`, seed axis; arrays
-  or ShapeDtypeStructs) with ``return`` -inf and ``env_steps`` -1 per seed."""
+  or ShapeDtypeStructs) with ``return`` -inf and ``env_steps`` -1 per seed. ``return`` holds the
+  score of :func:`best_criterion` (the eval return unless ``best_by`` names another metric)."""
   n = jax.tree.leaves(params)[0].shape[0]
   return dict(params, **{"return": np.full(n, -np.inf, np.float32), "env_steps": np.full(n, -1, np.int32)})
 
@@ -757,6 +761,7 @@ def run(
     return saved_params(ts.agent)
 
   best = initial_best
+  criterion = best_criterion(config)
 
   def evaluate(index, step):
     nonlocal best
@@ -766,8 +771,11 @@ def run(
     ev["eval/env_steps"] = np.full(n_runs, step)
     for name, v in ev.items():
       hist.setdefault(name, []).append(v)
+    if criterion not in ev:
+      raise ValueError(f"best_by={config.best_by!r}: this env's evaluation has no such metric; use one of "
+                       + ", ".join(sorted(k[5:] for k in ev if k != "eval/env_steps")))
     if index > start_chunk:  # not the evaluation at the start
-      score = ev[BEST_CRITERION]
+      score = ev[criterion]
       if best is None:
         best = empty_best(sharding_lib.to_host(current_params()))
       if np.any(score > best["return"]):  # copy params off the device only when one improved

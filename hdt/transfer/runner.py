@@ -322,7 +322,7 @@ def _write_run(run_dir: Path, config: SACConfig, meta: dict, seeds: list, params
   for i, s in enumerate(seeds):
     at = int(diverged[i])
     ckpt.save(run_dir, i, jax.tree.map(lambda x: x[i], params),
-              dict(meta, seed=s, **({"diverged_at_env_step": at} if at >= 0 else {})), best=_seed_best(res.best, i))
+              dict(meta, seed=s, **({"diverged_at_env_step": at} if at >= 0 else {})), best=_seed_best(res.best, i, config))
   write_metrics_csv(run_dir / "metrics.csv", res.history, seeds)
   write_tensorboard(run_dir / "tb", res.history, seeds)
   hashes = [ckpt.content_hash(run_dir, i) for i in range(len(seeds))]  # checked on every load
@@ -333,12 +333,13 @@ def _same(a: Path, b: Path) -> bool:
   return Path(os.path.abspath(a)) == Path(os.path.abspath(b))
 
 
-def _seed_best(best: dict | None, i: int) -> tuple[dict, dict] | None:
+def _seed_best(best: dict | None, i: int, config: SACConfig) -> tuple[dict, dict] | None:
   """(params, info) of seed ``i``'s best evaluation for :func:`ckpt.save`, None if it has none."""
   if best is None or best["env_steps"][i] < 0:
     return None
-  info = dict(env_steps=int(best["env_steps"][i]), eval_return=float(best["return"][i]),
-              criterion=f"highest mean {sac_train.BEST_CRITERION} over the periodic evaluations")
+  criterion = sac_train.best_criterion(config)
+  info = {"env_steps": int(best["env_steps"][i]), criterion.replace("/", "_"): float(best["return"][i]),
+          "criterion": f"highest mean {criterion} over the periodic evaluations"}
   return {k: jax.tree.map(lambda x: x[i], v) for k, v in best.items() if k not in ("return", "env_steps")}, info
 
 
