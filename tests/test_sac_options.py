@@ -1,5 +1,6 @@
 """SAC's sample-efficiency options: n-step critic targets (SACConfig.n_step; the replay's n-step sample
-against a brute-force reference) and the delayed actor (SACConfig.policy_delay); SAC learns with each."""
+against a brute-force reference), the delayed actor (SACConfig.policy_delay) and the policy's moving
+average (SACConfig.policy_ema); SAC learns with each."""
 
 import dataclasses
 
@@ -10,8 +11,8 @@ import pytest
 
 from hdt.agents import replay
 from hdt.agents.plugins import Plugin
-from hdt.agents.sac import SACConfig
-from hdt.agents.train import delayed_actor_group, make_train, run
+from hdt.agents.sac import SACConfig, make_update
+from hdt.agents.train import delayed_actor_group, make_train, run, saved_params
 from toy_env import PointGoal
 
 
@@ -109,3 +110,30 @@ def test_a_delayed_actor_group_runs_the_critic_alone_first_and_logs_the_critic_o
   agent, m = delayed_actor_group(update, 3)([], jnp.array([1.0, 2.0, 6.0]))
   assert agent == [(1.0, False), (2.0, False), (6.0, True)]
   assert float(m["critic_loss"]) == 3.0 and float(m["actor_loss"]) == 60.0
+
+
+def test_the_policys_moving_average_is_what_evaluations_and_checkpoints_use_and_training_is_unchanged():
+  cfg, plain = _learns(4_000, updates_per_step=4, policy_delay=2)
+  ema = run(PointGoal(), dataclasses.replace(cfg, policy_ema=0.01), seeds=[0])
+  train = lambda r: {k: v for k, v in r.history.items() if not k.startswith("eval/") and k != "walltime"}
+  jax.tree_util.tree_map(np.testing.assert_array_equal, train(ema), train(plain))  # acting, updates: the same
+  jax.tree_util.tree_map(np.testing.assert_array_equal, ema.state.agent.policy_params, plain.state.agent.policy_params)
+  agent = jax.tree_util.tree_map(lambda x: x[0], ema.state.agent)
+  assert not all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(agent.policy_ema_params),
+                                                      jax.tree_util.tree_leaves(agent.policy_params)))
+  jax.tree_util.tree_map(np.testing.assert_array_equal, saved_params(ema.state.agent)["policy"],
+                         ema.state.agent.policy_ema_params)
+  assert not np.array_equal(ema.history["eval/return"], plain.history["eval/return"])
+  assert jax.eval_shape(make_train(PointGoal(), cfg).init, jax.random.PRNGKey(0)).agent.policy_ema_params is None
+  # one actor step moves the average by the rate toward the new policy
+  trainer = make_train(PointGoal(), dataclasses.replace(cfg, policy_ema=0.01))
+  update = make_update(trainer.networks, trainer.config, PointGoal().action_size)
+  batch = jax.tree_util.tree_map(lambda x: x[0, :cfg.batch_size], ema.state.replay.data)
+  new, _ = update(agent, batch, jnp.zeros((2, cfg.batch_size, PointGoal().action_size)))
+  jax.tree_util.tree_map(lambda e, old, p: np.testing.assert_allclose(e, 0.99 * old + 0.01 * p, rtol=1e-6, atol=1e-7),
+                         new.policy_ema_params, agent.policy_ema_params, new.policy_params)
+
+
+def test_policy_ema_must_be_a_rate_below_one():
+  with pytest.raises(ValueError, match=r"policy_ema=1.0: must be in \[0, 1\)"):
+    SACConfig(policy_ema=1.0)

@@ -95,6 +95,10 @@ class SACConfig:
   # trainer.py callback, or another of the env's (e.g. "success_max", which tracks a reach LL's
   # success more closely than its return does).
   best_by: str = "return"
+  # An exponential moving average of the policy's parameters (this rate per actor step) is what
+  # evaluations and checkpoints use, as Polyak averaging for the actor; 0 uses the trained policy
+  # itself (the authors'). Acting during training always uses the trained policy.
+  policy_ema: float = 0.0
 
   def __post_init__(self):
     # Plain Python numbers (numpy ones, e.g. an np.int64 budget, are accepted) and tuples, so the
@@ -206,6 +210,8 @@ class SACConfig:
         self.target_entropy is None or math.isfinite(self.target_entropy),
         f"target_entropy={self.target_entropy}: must be finite or None (-action_size)",
     )
+    need(_is_number(self.policy_ema) and 0.0 <= self.policy_ema < 1.0,
+         f"policy_ema={self.policy_ema!r}: must be in [0, 1): 0 for none, e.g. 0.001")
     need(isinstance(self.best_by, str) and self.best_by.strip() == self.best_by and self.best_by != "",
          f"best_by={self.best_by!r}: name an evaluation metric, e.g. 'return' or 'success_max'")
     if errors:
@@ -231,7 +237,7 @@ MAX_COUNT = 2**31  # step counters and buffer indices are int32
 # SACConfig fields added after runs were saved without them, at the behaviour those runs had: a
 # saved state missing a field resumes under this value (hdt.transfer.runner).
 ADDED_FIELDS = {"bootstrap_time_limits": True, "critic_layer_norm": False, "n_step": 1, "policy_delay": 1,
-                "best_by": "return"}
+                "best_by": "return", "policy_ema": 0.0}
 
 
 def _is_int(v) -> bool:
@@ -355,6 +361,13 @@ class SACState:
   # Running observation statistics (hdt.agents.normalizer) the networks apply, updated by the training
   # loop from collected observations, never by gradients; None (no leaves) without normalisation.
   obs_norm: Any = None
+  # The policy's moving average (SACConfig.policy_ema); None (no leaves) without one.
+  policy_ema_params: Any = None
+
+  @property
+  def deployed_policy(self) -> Params:
+    """The policy parameters evaluations and checkpoints use: the moving average when kept."""
+    return self.policy_params if self.policy_ema_params is None else self.policy_ema_params
 
 
 # The SACConfig fields that change no array shape: ``make_update``'s update takes them as an
@@ -409,6 +422,7 @@ def init_sac_state(networks: nets.SACNetworks, config: SACConfig, key: jax.Array
       alpha_opt_state=a_opt.init(log_alpha),
       update_steps=jnp.zeros((), jnp.int32),
       obs_norm=normalizer.init(networks.observation_size) if config.normalize_observations else None,
+      policy_ema_params=jax.tree_util.tree_map(jnp.copy, policy_params) if config.policy_ema > 0 else None,
   )
 
 
@@ -483,6 +497,8 @@ def make_update(
         alpha_opt_state=alpha_opt_state,
         update_steps=state.update_steps + 1,
         obs_norm=state.obs_norm,
+        policy_ema_params=None if state.policy_ema_params is None else soft_update(
+            state.policy_ema_params, policy_params, config.policy_ema),
     )
     metrics = {
         "critic_loss": c_loss,

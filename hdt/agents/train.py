@@ -7,7 +7,7 @@
     keys = seed_keys(range(4))
     ts = jax.jit(jax.vmap(trainer.init))(keys, seed_indices(4))
     ts, metrics = jax.jit(jax.vmap(trainer.run_chunk), donate_argnums=0)(ts)
-    ev = jax.jit(jax.vmap(trainer.evaluate))(ts.agent.policy_params, eval_keys, ts.agent.obs_norm)
+    ev = jax.jit(jax.vmap(trainer.evaluate))(ts.agent.deployed_policy, eval_keys, ts.agent.obs_norm)
     ts, out = jax.jit(jax.vmap(trainer.train))(keys)           # everything in one call
 
 (:func:`vmapped` builds and caches exactly these jitted functions), or use :func:`run`, which
@@ -93,7 +93,7 @@ def plugin_key(key: jax.Array, index: int) -> jax.Array:
 def saved_params(agent: SACState) -> dict:
   """What a checkpoint keeps of ``agent``: {"policy", "q"} and, with a normaliser, its statistics
   beside them as "obs_norm" (:mod:`hdt.agents.normalizer`)."""
-  out = {"policy": agent.policy_params, "q": agent.q_params}
+  out = {"policy": agent.deployed_policy, "q": agent.q_params}
   return out if agent.obs_norm is None else dict(out, **{normalizer.KEY: agent.obs_norm})
 
 
@@ -478,7 +478,7 @@ def make_train(
     ts, chunk_metrics = jax.lax.scan(
         lambda ts, _: run_chunk(ts, hyper), ts, None, length=config.num_chunks
     )
-    return ts, {"train": chunk_metrics, "eval": evaluate(ts.agent.policy_params, k_eval, ts.agent.obs_norm)}
+    return ts, {"train": chunk_metrics, "eval": evaluate(ts.agent.deployed_policy, k_eval, ts.agent.obs_norm)}
 
   return Trainer(init, run_chunk, evaluate, train, networks, config, sweepable,
                  native_physics=physics_backend(env) == "native")
@@ -633,7 +633,7 @@ def _ahead_of_time(fns: VmappedFns, key: str, keys: jax.Array, hyper: dict | Non
   chunk, init, evaluate, eval_keys = cache.compiled_all([
       (fns.run_chunk, key + "|run_chunk", lambda: (ts_a(), *hyper_a)),
       (fns.init, key + "|init", lambda: (keys_a, index_a)),
-      (fns.evaluate, key + "|evaluate", lambda: (ts_a().agent.policy_params, keys_a, ts_a().agent.obs_norm)),
+      (fns.evaluate, key + "|evaluate", lambda: (ts_a().agent.deployed_policy, keys_a, ts_a().agent.obs_norm)),
       (fns.eval_keys, key + "|eval_keys", lambda: (keys_a, jax.ShapeDtypeStruct((), jnp.int32))),
   ])
   return VmappedFns(init=init, run_chunk=chunk if hyper is None else (lambda ts, h: chunk(ts, h)),
@@ -766,7 +766,7 @@ def run(
   def evaluate(index, step):
     nonlocal best
     k = fns.eval_keys(keys, np.int32(index))
-    ev = sharding_lib.to_host(eval_fn(ts.agent.policy_params, k, ts.agent.obs_norm))
+    ev = sharding_lib.to_host(eval_fn(ts.agent.deployed_policy, k, ts.agent.obs_norm))
     ev = {f"eval/{name}": np.asarray(v) for name, v in ev.items()}
     ev["eval/env_steps"] = np.full(n_runs, step)
     for name, v in ev.items():

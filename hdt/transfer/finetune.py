@@ -88,7 +88,8 @@ def start_from_a(agent, a_params, config, high, init: str = "sac"):
   pi_opt, q_opt, a_opt = make_optimizers(config)
   policy = f32(a_params["policy"])
   _check_fits("policy", policy, agent.policy_params, high)
-  agent = agent.replace(policy_params=policy, policy_opt_state=pi_opt.init(policy))
+  agent = agent.replace(policy_params=policy, policy_opt_state=pi_opt.init(policy),
+                        policy_ema_params=None if agent.policy_ema_params is None else policy)
   if agent.obs_norm is not None:  # the statistics the policy was trained with
     norm = f32(a_params[ckpt.NORM])
     _check_fits("observation statistics", norm, agent.obs_norm, high)
