@@ -113,7 +113,9 @@ def test_a_delayed_actor_group_runs_the_critic_alone_first_and_logs_the_critic_o
 
 
 def test_the_policys_moving_average_is_what_evaluations_and_checkpoints_use_and_training_is_unchanged():
-  cfg, plain = _learns(4_000, updates_per_step=4, policy_delay=2)
+  cfg = SACConfig(total_env_steps=1_500, steps_per_chunk=250, learning_starts=300, buffer_size=2_000,
+                  num_eval_episodes=8, num_envs=2, updates_per_step=4, policy_delay=2)
+  plain = run(PointGoal(), cfg, seeds=[0])
   ema = run(PointGoal(), dataclasses.replace(cfg, policy_ema=0.01), seeds=[0])
   train = lambda r: {k: v for k, v in r.history.items() if not k.startswith("eval/") and k != "walltime"}
   jax.tree_util.tree_map(np.testing.assert_array_equal, train(ema), train(plain))  # acting, updates: the same
