@@ -496,8 +496,8 @@ class RunResult(NamedTuple):
 
 
 # Model selection as the authors did (bot_transfer/utils/trainer.py callback): after each periodic
-# evaluation, a seed whose mean deterministic eval return (SACConfig.best_by) beats its best so far
-# keeps those params.
+# evaluation, a seed whose mean of the SACConfig.best_by metric (the eval return by default) beats its
+# best so far keeps those params.
 def best_criterion(config: SACConfig) -> str:
   """The history key whose per-seed mean picks the best parameters."""
   return f"eval/{config.best_by}"
