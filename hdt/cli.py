@@ -420,7 +420,7 @@ def _finish(res, args):
   summary = ", ".join(f"{k[5:]} {np.mean(v[:, -1]):.3g} ± {np.std(v[:, -1]):.2g}" for k, v in ev.items())
   print(f"{res.run_dir}: final evaluation {summary}")
   if res.best is not None:  # kept beside the final parameters (seed_<i>/best/, `hdt eval --params best`)
-    best = ", ".join(f"{r:.3g} at {s}" for r, s in zip(res.best["return"], res.best["env_steps"]))
+    best = ", ".join(f"{r:.3g} at {s}" for r, s in zip(res.best["score"], res.best["env_steps"]))
     by = res.card.sac.get("best_by", "return")
     print(f"{res.run_dir}: best evaluation per seed ({by} at env step) {best}")
   return 0

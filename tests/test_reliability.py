@@ -148,7 +148,7 @@ def test_best_evaluation_params_survive_resume(uninterrupted, resumed):
   ev, steps = uninterrupted.history["eval/return"][:, 1:], uninterrupted.history["eval/env_steps"][:, 1:]
   first_max = np.argmax(ev, axis=1)  # argmax takes the earliest of ties, as update_best
   np.testing.assert_array_equal(resumed.best["env_steps"], steps[np.arange(2), first_max])
-  np.testing.assert_array_equal(resumed.best["return"], ev[np.arange(2), first_max])
+  np.testing.assert_array_equal(resumed.best["score"], ev[np.arange(2), first_max])
   for i in range(2):
     params, meta = ckpt.load(resumed.run_dir, i, which="best")
     assert meta["params"] == "best" and meta["params_env_steps"] == meta["best"]["env_steps"] == \
@@ -172,7 +172,7 @@ def test_best_params_are_those_of_the_best_evaluation(best_by, tmp_path):
   assert not np.array_equal(np.argmax(ev, 1), np.argmax(res.history["eval/return"][:, 1:], 1)) or best_by == "return"
   for i in range(2):
     at = int(steps[i, np.argmax(ev[i])])
-    assert res.best["env_steps"][i] == at and res.best["return"][i] == ev[i].max()
+    assert res.best["env_steps"][i] == at and res.best["score"][i] == ev[i].max()
     assert_trees_equal({k: jax.tree.map(lambda x: x[i], res.best[k]) for k in ("policy", "q")},
                        jax.tree.map(lambda x: np.asarray(x[i]), seen[at]))
   # the record only moves up, and a NaN score never wins
@@ -298,6 +298,21 @@ def test_a_state_saved_before_diverged_at_existed_loads_as_never_diverged(tmp_pa
   loaded = ckpt.load_state(tmp_path, template).tree
   assert list(np.asarray(loaded.diverged_at)) == [-1, -1]
   assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(loaded.agent), jax.tree.leaves(ts.agent)))
+
+
+def test_a_best_record_saved_with_its_score_named_return_loads_as_score(tmp_path):
+  """States saved before the rename kept the best record's score under "return"; they still resume."""
+  params = {"policy": {"w": np.arange(6, dtype=np.float32).reshape(2, 3)}}
+  best = sac_train.update_best(sac_train.empty_best(params), params, np.array([0.5, 0.9]), 1000)
+  old = {("return" if k == "score" else k): v for k, v in best.items()}
+  ckpt.save_state(tmp_path, {"x": np.zeros(2)}, {}, {"config": {}}, best=old)
+  loaded = ckpt.load_state(tmp_path, {"x": np.zeros(2)}, jax.eval_shape(lambda: best)).best
+  assert_trees_equal(loaded, best)
+  np.testing.assert_array_equal(loaded["score"], np.float32([0.5, 0.9]))
+  # a record that has neither name still refuses to load
+  ckpt.save_state(tmp_path, {"x": np.zeros(2)}, {}, {"config": {}}, best={k: v for k, v in old.items() if k != "return"})
+  with pytest.raises(ckpt.CheckpointError, match="does not fit this run"):
+    ckpt.load_state(tmp_path, {"x": np.zeros(2)}, jax.eval_shape(lambda: best))
 
 
 # ------------------------------------------------------------------------------------------------

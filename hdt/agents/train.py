@@ -505,21 +505,21 @@ def best_criterion(config: SACConfig) -> str:
 
 def empty_best(params: dict) -> dict:
   """The best-so-far record before any evaluation: ``params`` (:func:`saved_params`, seed axis; arrays
-  or ShapeDtypeStructs) with ``return`` -inf and ``env_steps`` -1 per seed. ``return`` holds the
-  score of :func:`best_criterion` (the eval return unless ``best_by`` names another metric)."""
+  or ShapeDtypeStructs) with ``score`` -inf and ``env_steps`` -1 per seed; ``score`` is the per-seed mean
+  of :func:`best_criterion`."""
   n = jax.tree.leaves(params)[0].shape[0]
-  return dict(params, **{"return": np.full(n, -np.inf, np.float32), "env_steps": np.full(n, -1, np.int32)})
+  return dict(params, **{"score": np.full(n, -np.inf, np.float32), "env_steps": np.full(n, -1, np.int32)})
 
 
 def update_best(best: dict, params: dict, score: np.ndarray, step: int) -> dict:
   """Per seed, ``params`` and ``score`` replace the record where ``score`` is strictly higher
   (the earliest evaluation wins ties; NaN never wins). Host numpy in and out."""
-  better = np.asarray(score) > best["return"]
+  better = np.asarray(score) > best["score"]
   if not better.any():
     return best
   pick = lambda old, new: np.where(better.reshape(better.shape + (1,) * (np.ndim(new) - 1)), new, old)
   out = {k: jax.tree.map(pick, best[k], jax.tree.map(np.asarray, params[k])) for k in params}
-  return dict(out, **{"return": pick(best["return"], np.asarray(score, np.float32)),
+  return dict(out, **{"score": pick(best["score"], np.asarray(score, np.float32)),
                       "env_steps": pick(best["env_steps"], np.full(better.shape, step, np.int32))})
 
 
@@ -778,7 +778,7 @@ def run(
       score = ev[criterion]
       if best is None:
         best = empty_best(sharding_lib.to_host(current_params()))
-      if np.any(score > best["return"]):  # copy params off the device only when one improved
+      if np.any(score > best["score"]):  # copy params off the device only when one improved
         best = update_best(best, sharding_lib.to_host(current_params()), score, step)
     return ev
 

@@ -418,7 +418,8 @@ def _check_fits(d: Path, got: list, want: list, written_by: str | None) -> None:
   if got != want:
     fmt = lambda spec: f"{spec[0]} {spec[2]}{spec[1]}" if spec else "nothing"
     saved, needed = next(((g, w) for g, w in zip(got, want) if g != w),
-                         (got[len(want):len(want) + 1], want[len(got):len(got) + 1]))
+                         (got[len(want)] if len(got) > len(want) else None,
+                          want[len(got)] if len(want) > len(got) else None))
     by = (f"{f'hdt {written_by}' if written_by else 'an older hdt'} wrote it, and this is hdt {__version__}"
           if written_by != __version__ else "it was written by another configuration")
     raise CheckpointError(f"the training state in {d} does not fit this run (saved {fmt(saved)} where "
@@ -432,19 +433,25 @@ _LEGACY_NORM = ((".agent.policy_params['obs_norm']", ".agent.obs_norm"),
 # TrainState leaves added since states were saved (keystr -> the value an older state means):
 # hdt.agents.train.TrainState.diverged_at, -1 for a seed that never diverged.
 _ADDED_LEAVES = {".diverged_at": -1}
+# Leaves renamed since (new keystr -> old): the best record's score was saved as its "return", also
+# when SACConfig.best_by picked another metric (hdt.agents.train.empty_best).
+_RENAMED_LEAVES = {"['score']": "['return']"}
 
 
 def _legacy_sources(got: list, want: list) -> list[list[int]] | None:
   """For a state saved by an older hdt (leaf specs ``got``), the saved indices that make each leaf of
   ``want`` (one leaf, or several raveled and concatenated); None if ``got`` is not such a state or the
-  conversions below do not make it fit. Three conversions: leaves added since (:data:`_ADDED_LEAVES`,
-  no saved index), the observation statistics that lived inside
+  conversions below do not make it fit. Four conversions: leaves added since (:data:`_ADDED_LEAVES`,
+  no saved index), leaves renamed since (:data:`_RENAMED_LEAVES`), the observation statistics that lived inside
   the networks (:data:`_LEGACY_NORM`; their other copies are dropped), and the Adam moments kept per
   layer before the optimisers raveled each small network's parameters (``hdt.agents.sac.make_optimizers``):
   ``...mu['params']...`` leaves become one ``...mu`` vector, in pytree order (as ``optax.flatten``)."""
   legacy_norm = any(f"['{NORM}']" in g[0] for g in got)
+  want_names = {w[0] for w in want}
+  renamed = {old: new for new, old in _RENAMED_LEAVES.items() if new in want_names and old not in want_names}
   index = {}
   for i, (name, shape, dtype) in enumerate(got):
+    name = renamed.get(name, name)
     new = next((n + name[len(o):] for o, n in _LEGACY_NORM if name.startswith(o)), None) if legacy_norm else None
     if new is not None or f"['{NORM}']" not in name:
       index[new or name] = (i, [new or name, shape, dtype])
@@ -463,7 +470,8 @@ def _legacy_sources(got: list, want: list) -> list[list[int]] | None:
             and sum(math.prod(spec[1][len(lead):]) for _, spec in parts) == shape[-1]):
       return None
     sources.append(sorted(i for i, _ in parts))
-  identity = all(src == [i] for i, src in enumerate(sources)) and len(sources) == len(got)
+  identity = (all(src == [i] for i, src in enumerate(sources)) and len(sources) == len(got)
+              and not any(g[0] in renamed for g in got))
   return None if identity else sources
 
 

@@ -338,9 +338,9 @@ def _seed_best(best: dict | None, i: int, config: SACConfig) -> tuple[dict, dict
   if best is None or best["env_steps"][i] < 0:
     return None
   criterion = sac_train.best_criterion(config)
-  info = {"env_steps": int(best["env_steps"][i]), criterion.replace("/", "_"): float(best["return"][i]),
+  info = {"env_steps": int(best["env_steps"][i]), criterion.replace("/", "_"): float(best["score"][i]),
           "criterion": f"highest mean {criterion} over the periodic evaluations"}
-  return {k: jax.tree.map(lambda x: x[i], v) for k, v in best.items() if k not in ("return", "env_steps")}, info
+  return {k: jax.tree.map(lambda x: x[i], v) for k, v in best.items() if k not in ("score", "env_steps")}, info
 
 
 
