@@ -340,6 +340,9 @@ def build_parser() -> argparse.ArgumentParser:
   zo.add_argument("--overwrite", action="store_true", help="export: replace an existing entry")
   zo.add_argument("--keep-sac", action="store_true",
                   help="export of an HL that finetuning starts from: keep its whole final SAC, not its policy only")
+  zo.add_argument("--params", choices=("best", "final"), default="best",
+                  help="export of an LL: keep the parameters of its best periodic evaluation (what HLs compose "
+                       "with) or its final ones")
 
   q = sub.add_parser("quickstart", help="PM LL + HL on Waypoint in minutes, then zero-shot transfer tables with zoo policies",
                      formatter_class=fmt)
@@ -750,7 +753,8 @@ def cmd_zoo(args) -> int:
   if args.episodes <= 0:
     raise CLIError(f"--episodes {args.episodes}: the entry's evaluation needs a positive number of episodes")
   dest = zoo.export(args.run, args.name, args.command, low=args.low, task=args.task, episodes=args.episodes,
-                    overwrite=args.overwrite, keep_sac=args.keep_sac, **_key_values(args.set, "--set"))
+                    overwrite=args.overwrite, keep_sac=args.keep_sac, low_params=args.params,
+                    **_key_values(args.set, "--set"))
   print(f"exported {args.run} to {dest} (zoo:{args.name})")
   return 0
 

@@ -3,6 +3,7 @@ an env or the evaluation fails here), and zoo:NAME works wherever a run director
 
 import json
 
+import jax
 import numpy as np
 import pytest
 import zoo_entries
@@ -175,6 +176,39 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
   for load in (lambda: zoo.recheck("t/low"), lambda: ev.compose("zoo:t/high", "zoo:t/low")):
     with pytest.raises(ckpt.CheckpointError, match="not the one .*zoo.json records \\(its content hash differs"):
       load()
+
+
+def test_an_ll_exported_with_its_final_parameters_keeps_and_loads_those(point_low, point_high, tmp_path,
+                                                                         monkeypatch):
+  import json
+  import shutil
+
+  from hdt.transfer import checkpoint as ckpt
+  monkeypatch.setattr(names, "ZOO_DIR", tmp_path / "zoo")
+  run = tmp_path / "run"  # a copy whose final policy is not its best one (here the last evaluation's)
+  shutil.copytree(point_low.run_dir if hasattr(point_low, "run_dir") else point_low, run)
+  params = ckpt.restore_params(run / "seed_0/params")
+  params["policy"]["params"]["mlp"]["hidden_0"]["kernel"] *= 0.5
+  ckpt.pack(run / "seed_0/params", params)
+  ckpt.record_seed_hashes(run)
+  final, best = (ckpt.load(run, 0, which)[0]["policy"] for which in ("final", "best"))
+  assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(final), jax.tree.leaves(best)))
+  zoo.export(run, "t/low_final", "test", episodes=2, low_params="final")
+  entry = tmp_path / "zoo/t/low_final"
+  assert (entry / "seed_0/params.msgpack").is_file() and not (entry / "seed_0/best").exists()
+  assert json.loads((entry / "zoo.json").read_text())["params"] == "final"
+  ref = ev.evaluate(ev.load_policy(run, "final"), episodes=4, key=3)["per_seed"]["return"].tolist()
+  for which in ("final", "best"):  # what HLs compose with (--low-params best) is the final policy too
+    pol = ev.load_policy("zoo:t/low_final", which)
+    assert pol.card.loaded == "final"
+    assert ev.evaluate(pol, episodes=4, key=3)["per_seed"]["return"].tolist() == ref
+  assert not zoo.within_noise(*zoo.recheck("t/low_final"))
+  assert zoo.reslim("t/low_final")["params"] == "final" and (entry / "seed_0/params.msgpack").is_file()
+  with pytest.raises(ValueError, match="'best' or its 'final' parameters"):
+    zoo.export(run, "t/low_last", "test", episodes=2, low_params="last")
+  with pytest.raises(ValueError, match="is not a low level: low_params"):
+    high = point_high.run_dir if hasattr(point_high, "run_dir") else point_high
+    zoo.export(high, "t/high_best", "test", low="zoo:t/low_final", episodes=2, low_params="final")
 
 
 @pytest.fixture()

@@ -8,7 +8,8 @@ LL seed it composes with) and a small deterministic re-evaluation (``check``) th
 noise (:func:`within_noise`: float differences between CPUs can flip a contact-rich episode). Names
 are names, not paths: one or two parts of ``[a-z0-9_]``, and ``zoo:NAME`` never leaves ``zoo/``.
 Each seed keeps one set of parameters, packed into one file: an LL the policy (and observation
-statistics) of its best periodic evaluation, which HLs compose with and alignment imitates; an HL the
+statistics) of its best periodic evaluation, which HLs compose with and alignment imitates (or, exported
+with ``low_params="final"``, its final one); an HL the
 final policy its numbers are of. An HL that finetuning starts from is exported with ``keep_sac``: its
 whole final SAC (the authors' finetune_high_level_kl.py loads A's whole model) and the policy of its
 best evaluation, which the KL ties to.
@@ -77,10 +78,13 @@ def _numbers(entry: str, low: str | None, task: str, episodes: int, task_kw: dic
 
 
 def export(run: str | Path, name: str, command: str, low: str | None = None, task: str | None = None,
-           episodes: int = 100, overwrite: bool = False, keep_sac: bool = False, **task_kw) -> Path:
+           episodes: int = 100, overwrite: bool = False, keep_sac: bool = False, low_params: str = "best",
+           **task_kw) -> Path:
   """Copies the policy of ``run`` into ``zoo/NAME`` and records its numbers. An HL needs ``low`` (a zoo
   name, which its metadata then points to) and is evaluated on ``task`` (default: its own); with
-  ``keep_sac`` it keeps its whole final SAC, for finetuning to start from (:func:`_slim`). Every
+  ``keep_sac`` it keeps its whole final SAC, for finetuning to start from (:func:`_slim`). An LL keeps
+  the policy of its best evaluation, or with ``low_params="final"`` its final one (e.g. a policy
+  average, whose best record an early tie can hold at a fraction of the budget). Every
   argument is checked before anything is written; the entry is built in a hidden directory and moved
   into place in one rename (hdt.transfer.rundir.install), so a failed export leaves no trace."""
   check_name(name)
@@ -93,6 +97,11 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
     what = "a flat (Full) policy" if meta.get("level") == "full" else "a low level"
     raise ZooError(f"{run} is {what}: keep_sac (--keep-sac) is for an HL that finetuning starts from; "
                    f"export it without --keep-sac (its entry keeps its policy)")
+  if low_params not in ("best", "final"):
+    raise ZooError(f"low_params={low_params!r}: an LL entry keeps its 'best' or its 'final' parameters")
+  if low_params != "best" and meta.get("level") != "low":
+    raise ZooError(f"{run} is not a low level: low_params (--params) picks what an LL entry keeps; an HL entry "
+                   f"keeps its final policy")
   if meta.get("level") == "high":
     if not (isinstance(low, str) and low.startswith(PREFIX)):
       raise ZooError(f"{run} is a high level: export its LL first and pass it as low='zoo:NAME' (CLI: --low zoo:NAME)")
@@ -124,11 +133,12 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
         if isinstance(m.get("low"), dict):
           m["low"] = dict(m["low"], path=low, sha256=m["low"].get("sha256") or low_hash)
           ckpt.write_json_atomic(mp, m)
-    slimmed = _slim(tmp, meta["level"], keep_sac)
+    slimmed = _slim(tmp, meta["level"], keep_sac, low_params)
     ckpt.record_seed_hashes(tmp)
     (tmp / "zoo.json").write_text("{}")  # an entry for the evaluations below (as ckpt.load sees it)
     full, check = _numbers(str(tmp), low, task, episodes, task_kw)
-    _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash, keep_sac, diverged)
+    _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash, keep_sac, diverged,
+                 low_params)
     return rundir.install(tmp, dest, overwrite=overwrite, reads={"exported": run}, zoo_ok=True, what="name")
   except BaseException:
     atomic.remove(tmp)  # nothing half-written is left in zoo/
@@ -170,10 +180,10 @@ def keeps(info: dict) -> str:
   return info.get("keeps", "sac" if info.get("level") == "high" else "policy")
 
 
-def _slim(entry: Path, level: str, keep_sac: bool = False) -> list[dict]:
+def _slim(entry: Path, level: str, keep_sac: bool = False, low_params: str = "best") -> list[dict]:
   """Drops from the copy ``entry`` (in place) what nothing loads from a zoo entry, and packs each
   parameter set left into one file (:func:`hdt.transfer.checkpoint.pack`). An LL keeps the policy of
-  its best evaluation (of its final parameters if it has no best); an HL the policy its numbers are of
+  its best evaluation (of its final parameters if it has no best, or with ``low_params="final"``); an HL the policy its numbers are of
   (its final), or with ``keep_sac`` its whole final SAC and its best policy, which KL finetuning ties
   to. Returns per seed the content hash before and after, so that what recorded the full run or an
   earlier copy still composes with this one (:func:`hdt.transfer.names.hash_aliases`)."""
@@ -182,7 +192,7 @@ def _slim(entry: Path, level: str, keep_sac: bool = False) -> list[dict]:
     before = ckpt.content_hash(entry, seed)
     d = ckpt.seed_dir(entry, seed)
     final, best = d / "params", d / "best" / "params"
-    drop = (final if level == "low" else None if keep_sac else best.parent)
+    drop = ((final if low_params == "best" else best.parent) if level == "low" else None if keep_sac else best.parent)
     if drop is not None and ckpt.has_params(final) and ckpt.has_params(best):
       atomic.remove(drop)
       atomic.remove(ckpt.packed(drop))
@@ -214,7 +224,7 @@ def reslim(name: str, keep_sac: bool | None = None) -> dict:
 
   def rewrite(tmp: Path):
     shutil.copytree(entry, tmp, dirs_exist_ok=True)
-    new = _slim(tmp, info["level"], keep_sac)
+    new = _slim(tmp, info["level"], keep_sac, info.get("params", "best"))
     for s in new:
       prev = old.get(s["seed"], {})
       earlier = {*prev.get("earlier_sha256", []), s["source_sha256"]}
@@ -235,7 +245,7 @@ def reslim(name: str, keep_sac: bool | None = None) -> dict:
 
 
 def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slimmed, low_hash=None,
-                 keep_sac=False, diverged=None):
+                 keep_sac=False, diverged=None, low_params="best"):
   sac, slimmed = meta.get("sac", {}), sorted(slimmed, key=lambda s: s["seed"])
   info = dict(name=name, level=meta["level"], agent=meta["agent"], task=task, task_options=task_kw,
               low=low, command=command,
@@ -247,6 +257,8 @@ def _write_entry(tmp, meta, name, task, task_kw, low, command, full, check, slim
   info["slim"] = slimmed
   if meta["level"] == "high":
     info["keeps"] = "sac" if keep_sac else "policy"
+  if low_params != "best":  # an LL entry's parameters: its best unless said
+    info["params"] = low_params
   if low_hash is not None:
     info["low_sha256"] = low_hash
   if diverged:  # {seed: env step}: these seeds' policies stopped there
