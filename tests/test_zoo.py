@@ -180,7 +180,6 @@ def test_export_keeps_only_the_ll_policies_and_the_hl_still_composes_over_them(p
 
 def test_an_ll_exported_with_its_final_parameters_keeps_and_loads_those(point_low, point_high, tmp_path,
                                                                          monkeypatch):
-  import json
   import shutil
 
   from hdt.transfer import checkpoint as ckpt
@@ -204,7 +203,7 @@ def test_an_ll_exported_with_its_final_parameters_keeps_and_loads_those(point_lo
     assert ev.evaluate(pol, episodes=4, key=3)["per_seed"]["return"].tolist() == ref
   assert not zoo.within_noise(*zoo.recheck("t/low_final"))
   assert zoo.reslim("t/low_final")["params"] == "final" and (entry / "seed_0/params.msgpack").is_file()
-  with pytest.raises(ValueError, match="'best' or its 'final' parameters"):
+  with pytest.raises(ValueError, match="low_params='last': load the 'final' parameters or the 'best'"):
     zoo.export(run, "t/low_last", "test", episodes=2, low_params="last")
   with pytest.raises(ValueError, match="is not a low level: low_params"):
     high = point_high.run_dir if hasattr(point_high, "run_dir") else point_high

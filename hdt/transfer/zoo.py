@@ -97,8 +97,7 @@ def export(run: str | Path, name: str, command: str, low: str | None = None, tas
     what = "a flat (Full) policy" if meta.get("level") == "full" else "a low level"
     raise ZooError(f"{run} is {what}: keep_sac (--keep-sac) is for an HL that finetuning starts from; "
                    f"export it without --keep-sac (its entry keeps its policy)")
-  if low_params not in ("best", "final"):
-    raise ZooError(f"low_params={low_params!r}: an LL entry keeps its 'best' or its 'final' parameters")
+  ckpt.check_which(low_params, "low_params")
   if low_params != "best" and meta.get("level") != "low":
     raise ZooError(f"{run} is not a low level: low_params (--params) picks what an LL entry keeps; an HL entry "
                    f"keeps its final policy")
@@ -192,7 +191,10 @@ def _slim(entry: Path, level: str, keep_sac: bool = False, low_params: str = "be
     before = ckpt.content_hash(entry, seed)
     d = ckpt.seed_dir(entry, seed)
     final, best = d / "params", d / "best" / "params"
-    drop = ((final if low_params == "best" else best.parent) if level == "low" else None if keep_sac else best.parent)
+    if level == "low":
+      drop = final if low_params == "best" else best.parent
+    else:
+      drop = None if keep_sac else best.parent
     if drop is not None and ckpt.has_params(final) and ckpt.has_params(best):
       atomic.remove(drop)
       atomic.remove(ckpt.packed(drop))
