@@ -36,6 +36,7 @@ import argparse
 import json
 import os
 import platform
+import signal
 import sys
 import tempfile
 import time
@@ -93,6 +94,8 @@ HDT_CONFIGS = {
 EVAL_KEY = 20260  # same evaluation episodes for every run
 VMAPPED = "_vmapped"  # suffix of a config's name when its seeds train as one vmapped program
 _cache_hits = []
+# SIGTERM ends a long measurement after its next evaluation, with the curve so far written out.
+_stopped = []
 jax.monitoring.register_event_listener(
     lambda event, **kw: _cache_hits.append(event) if event == "/jax/compilation_cache/cache_hits" else None)
 
@@ -200,7 +203,7 @@ def hdt_loop_seeds(label, env, cfg, seeds, make_eval, thresholds, max_seconds, l
       done[i] = done[i] or passes(float(metric), stop, higher)
     log(f"    {label} {tag}: {steps:7d} steps {train_s:7.1f}s  {metric_name} "
         + " ".join(f"{x:.3f}" for x in metrics))
-    if all(done):
+    if all(done) or _stopped:
       break
     if steps + cfg.env_steps_per_chunk > cfg.total_env_steps or train_s > max_seconds * len(seeds):
       break
@@ -208,7 +211,8 @@ def hdt_loop_seeds(label, env, cfg, seeds, make_eval, thresholds, max_seconds, l
   return [dict(seed=seed, reached=first_crossings(curve, thresholds, t_init + compile_s, higher),
                curve=curve, compile_s=compile_s, init_s=t_init, startup_s=t_init + compile_s,
                compile_cache=cache, final_steps=curve[-1][0], final_seconds=curve[-1][1],
-               final_metric=curve[-1][2], load_end=load(), **shared) for seed, curve in zip(seeds, curves)]
+               final_metric=curve[-1][2], load_end=load(), stopped=bool(_stopped), **shared)
+          for seed, curve in zip(seeds, curves)]
 
 
 def shown_path(path) -> str:
@@ -284,7 +288,7 @@ def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_
       t = now - t0 - state["eval_s"]
       state["curve"].append((n, t, metric))
       log(f"    {label} seed {seed}: {n:7d} steps {t:7.1f}s  {metric_name} {metric:.3f}")
-      if passes(metric, stop, higher):
+      if passes(metric, stop, higher) or _stopped:
         return False
       return t < max_seconds
 
@@ -292,7 +296,7 @@ def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_
   c = state["curve"]
   return dict(seed=seed, reached=first_crossings(c, thresholds, higher=higher), curve=c,
               final_steps=c[-1][0] if c else 0, final_seconds=c[-1][1] if c else 0.0,
-              final_metric=c[-1][2] if c else None, load_end=load())
+              final_metric=c[-1][2] if c else None, load_end=load(), stopped=bool(_stopped))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -422,6 +426,7 @@ def main():
     if not args.no_results:
       update_results(out)
     return
+  signal.signal(signal.SIGTERM, lambda *_: _stopped.append(True))
   use_cpu_cores()  # as the CLI: one JAX device per core, so vmapped seeds split over the cores
   args.compile_cache = str(enable_compile_cache(args.compile_cache or tempfile.mkdtemp(prefix="hdt-ttq-")))
   seeds = list(range(args.first_seed, args.first_seed + (1 if args.quick else args.seeds)))
@@ -469,7 +474,7 @@ def main():
     sbx_key = "crossq" if args.sbx_algo == "crossq" else "sbx"
     if not args.skip_sbx:
       runs = [run_sbx(agent, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
-                      args.eval_episodes, log, metric, algo=args.sbx_algo) for s in seeds]
+                      args.eval_episodes, log, metric, algo=args.sbx_algo) for s in seeds if not _stopped]
       res[sbx_key] = dict(runs=runs)
     if os.path.exists(args.out):  # merge with the halves this invocation did not run
       with open(args.out) as f:
