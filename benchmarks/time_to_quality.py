@@ -28,6 +28,9 @@ SBX: the paper's hyper-parameters, one env, one gradient update per env step (SB
 ``train_freq=1, gradient_steps=1``, ``learning_starts=100``, ``ent_coef="auto"``).
 hdt: several parallel-env / updates-per-step / batch settings (``HDT_CONFIGS``); every seed runs
 on its own (seeds=[s]); the best setting is the one with the lowest median time.
+
+SIGTERM ends the run in progress after its next evaluation and writes the results so far, that run
+marked ``stopped`` (for curves longer than a session; later seeds are not started).
 """
 
 from __future__ import annotations
