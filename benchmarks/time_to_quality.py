@@ -30,7 +30,9 @@ hdt: several parallel-env / updates-per-step / batch settings (``HDT_CONFIGS``);
 on its own (seeds=[s]); the best setting is the one with the lowest median time.
 
 SIGTERM ends the run in progress after its next evaluation and writes the results so far, that run
-marked ``stopped`` (for curves longer than a session; later seeds are not started).
+marked ``stopped`` (for curves longer than a session; later seeds are not started). With
+``--sbx-keep DIR`` a stopped SBX run also saves its model and replay buffer there, and ``--resume``
+continues it (its clock the sum of its parts).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import signal
 import sys
 import tempfile
@@ -240,8 +243,24 @@ def shown_args(args) -> dict:
 # SBX
 
 
+def save_sbx(path, model, curve):
+  """Writes a stopped SBX run to ``path`` whole or not at all: into a sibling directory, then renamed."""
+  tmp = path + ".partial"
+  shutil.rmtree(tmp, ignore_errors=True)
+  os.makedirs(tmp)
+  model.save(os.path.join(tmp, "model.zip"))
+  model.save_replay_buffer(os.path.join(tmp, "replay.pkl"))
+  with open(os.path.join(tmp, "curve.json"), "w") as f:
+    json.dump(curve, f)
+  old = path + ".old"
+  if os.path.exists(path):
+    os.replace(path, old)
+  os.replace(tmp, path)
+  shutil.rmtree(old, ignore_errors=True)
+
+
 def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log, metric="dist",
-            algo="sac"):
+            algo="sac", keep=None, resume=False):
   from gym_reach import ReachGymEnv
 
   env = make(agent, "reach")  # hdt env: the model for the gym port, and the evaluator's env
@@ -249,34 +268,52 @@ def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, epi
   return sbx_loop(f"sbx {algo} {agent}", lambda: ReachGymEnv(env, seed=seed), hp, seed,
                   lambda act: make_evaluator(env, act, episodes, metric), thresholds,
                   eval_every, max_steps, max_seconds, log, t0, higher=metric == "success", metric_name=metric,
-                  algo=algo)
+                  algo=algo, keep=keep and os.path.join(keep, f"{agent}_{algo}_seed{seed}"), resume=resume)
 
 
 def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_steps, max_seconds,
-             log, t0, higher=False, metric_name="dist", algo="sac"):
+             log, t0, higher=False, metric_name="dist", algo="sac", keep=None, resume=False):
   """Trains SBX on ``make_genv()`` (one env, one update per env step): ``algo="sac"`` at the paper's
   ``hp``; ``"crossq"`` at CrossQ's published defaults (sbx's: batch-renormalised 2048-wide critics
   without targets, lr 1e-3, batch 256, policy delay 3). Evaluates every ``eval_every`` env steps with
   ``make_eval(act)(params) -> metric``, ``act(params, obs) -> deterministic action``; the training clock
-  starts at ``t0`` and excludes evaluation."""
+  starts at ``t0`` and excludes evaluation.
+
+  ``keep``: a directory where a run stopped by SIGTERM saves its model (optimiser states included),
+  replay buffer and curve; ``resume=True`` continues the run saved there (its clock adds this part's,
+  start-up included, to the earlier parts') and removes the saved state once the run ends."""
   from stable_baselines3.common.callbacks import BaseCallback
 
+  saved = keep is not None and os.path.exists(os.path.join(keep, "curve.json"))
+  if saved and not resume:
+    raise SystemExit(f"{keep} holds a stopped SBX run: add --resume to continue it, or pick another --sbx-keep")
+  if resume and not saved:
+    raise SystemExit(f"--resume: no stopped SBX run in {keep}; run without --resume to start one")
   genv = make_genv()
   if algo == "crossq":
-    from sbx import CrossQ
-    model = CrossQ("MlpPolicy", genv, seed=seed, verbose=0)
-    actor = model.policy.actor_state
+    from sbx import CrossQ as Algo
+    kwargs = {}
     # batch statistics frozen at evaluation (train=False), as sbx's own predict
-    evaluate = make_eval(lambda p, obs: actor.apply_fn(p, obs, train=False).mode())
+    act = lambda p, obs: model.policy.actor_state.apply_fn(p, obs, train=False).mode()
     params = lambda m: {"params": m.policy.actor_state.params, "batch_stats": m.policy.actor_state.batch_stats}
   else:
-    from sbx import SAC
-    model = SAC("MlpPolicy", genv, learning_rate=hp["learning_rate"], batch_size=hp["batch_size"],
-                buffer_size=hp["buffer_size"], learning_starts=100, train_freq=1, gradient_steps=1,
-                policy_kwargs=dict(net_arch=list(hp["net_arch"])), seed=seed, verbose=0)
-    evaluate = make_eval(lambda p, obs: model.policy.actor_state.apply_fn(p, obs).mode())
+    from sbx import SAC as Algo
+    kwargs = dict(learning_rate=hp["learning_rate"], batch_size=hp["batch_size"], buffer_size=hp["buffer_size"],
+                  learning_starts=100, train_freq=1, gradient_steps=1,
+                  policy_kwargs=dict(net_arch=list(hp["net_arch"])))
+    act = lambda p, obs: model.policy.actor_state.apply_fn(p, obs).mode()
     params = lambda m: m.policy.actor_state.params
-  state = dict(eval_s=0.0, curve=[])
+  if saved:
+    model = Algo.load(os.path.join(keep, "model.zip"), env=genv)
+    model.load_replay_buffer(os.path.join(keep, "replay.pkl"))
+    with open(os.path.join(keep, "curve.json")) as f:
+      before = json.load(f)
+    state = dict(eval_s=0.0, curve=[tuple(c) for c in before["curve"]], offset=before["seconds"])
+    log(f"    {label} seed {seed}: continues from {model.num_timesteps} env steps, {before['seconds']:.1f}s ({keep})")
+  else:
+    model = Algo("MlpPolicy", genv, seed=seed, verbose=0, **kwargs)
+    state = dict(eval_s=0.0, curve=[], offset=0.0)
+  evaluate = make_eval(act)
   stop = (max if higher else min)(thresholds)
 
   class Eval(BaseCallback):
@@ -288,15 +325,20 @@ def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_
       metric = float(evaluate(params(self.model)))
       now = time.perf_counter()
       state["eval_s"] += now - te
-      t = now - t0 - state["eval_s"]
+      t = state["offset"] + now - t0 - state["eval_s"]
       state["curve"].append((n, t, metric))
       log(f"    {label} seed {seed}: {n:7d} steps {t:7.1f}s  {metric_name} {metric:.3f}")
       if passes(metric, stop, higher) or _stopped:
         return False
       return t < max_seconds
 
-  model.learn(total_timesteps=max_steps, callback=Eval())
+  model.learn(total_timesteps=max_steps - model.num_timesteps, callback=Eval(), reset_num_timesteps=not saved)
   c = state["curve"]
+  if keep is not None and _stopped and model.num_timesteps < max_steps:
+    save_sbx(keep, model, dict(curve=c, seconds=c[-1][1] if c else state["offset"]))
+    log(f"    {label} seed {seed}: stopped at {model.num_timesteps} env steps; saved in {keep} (--resume continues)")
+  elif saved:
+    shutil.rmtree(keep)  # consumed: the run ended
   return dict(seed=seed, reached=first_crossings(c, thresholds, higher=higher), curve=c,
               final_steps=c[-1][0] if c else 0, final_seconds=c[-1][1] if c else 0.0,
               final_metric=c[-1][2] if c else None, load_end=load(), stopped=bool(_stopped))
@@ -413,7 +455,12 @@ def main():
   ap.add_argument("--sbx-algo", choices=("sac", "crossq"), default="sac",
                   help="SBX's SAC at the paper's hyper-parameters, or CrossQ at its published defaults "
                        "(results under 'crossq', compared in crossq_speedup_<agent>_ll_paper_quality)")
+  ap.add_argument("--sbx-keep", metavar="DIR",
+                  help="where an SBX run stopped by SIGTERM saves its model, replay buffer and curve")
+  ap.add_argument("--resume", action="store_true", help="continue the SBX runs saved in --sbx-keep")
   args = ap.parse_args()
+  if args.resume and not args.sbx_keep:
+    raise SystemExit("--resume continues SBX runs saved in --sbx-keep DIR: give that DIR")
   agents = args.agents.split(",")
   if args.check:
     check(agents)
@@ -477,7 +524,8 @@ def main():
     sbx_key = "crossq" if args.sbx_algo == "crossq" else "sbx"
     if not args.skip_sbx:
       runs = [run_sbx(agent, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
-                      args.eval_episodes, log, metric, algo=args.sbx_algo) for s in seeds if not _stopped]
+                      args.eval_episodes, log, metric, algo=args.sbx_algo, keep=args.sbx_keep, resume=args.resume)
+              for s in seeds if not _stopped]
       res[sbx_key] = dict(runs=runs)
     if os.path.exists(args.out):  # merge with the halves this invocation did not run
       with open(args.out) as f:
