@@ -419,11 +419,13 @@ def _label(agent: str) -> str:
 
 def _finish(res, args):
   import numpy as np
+
+  from hdt.numfmt import mean_std, number
   ev = {k: v for k, v in res.history.items() if k in ("eval/return", "eval/success_max", "eval/goal_dist")}
-  summary = ", ".join(f"{k[5:]} {np.mean(v[:, -1]):.3g} ± {np.std(v[:, -1]):.2g}" for k, v in ev.items())
+  summary = ", ".join(f"{k[5:]} {mean_std(np.mean(v[:, -1]), np.std(v[:, -1]))}" for k, v in ev.items())
   print(f"{res.run_dir}: final evaluation {summary}")
   if res.best is not None:  # kept beside the final parameters (seed_<i>/best/, `hdt eval --params best`)
-    best = ", ".join(f"{r:.3g} at {s}" for r, s in zip(res.best["score"], res.best["env_steps"]))
+    best = ", ".join(f"{number(r)} at {s}" for r, s in zip(res.best["score"], res.best["env_steps"]))
     by = res.card.sac.get("best_by", "return")
     print(f"{res.run_dir}: best evaluation per seed ({by} at env step) {best}")
   return 0
@@ -523,7 +525,8 @@ def named_runs(items) -> dict[str, Path]:
 
 def cmd_eval(args) -> int:
   from hdt import plots
-  from hdt.report import fmt, markdown_table
+  from hdt.numfmt import mean_std, number
+  from hdt.report import markdown_table
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer.evaluate import compose, evaluate, load_policy, zero_shot_matrix
 
@@ -552,7 +555,7 @@ def cmd_eval(args) -> int:
     task = args.task or ckpt.require(ckpt.load_meta(first), {"task": str}, first)["task"]
     m = zero_shot_matrix(highs, lows, task, episodes=args.episodes, backend=args.backend, which=args.params,
                          low_which=args.low_params, **overrides)
-    rows = [[r] + [fmt(*m["cells"][(r, c)][:2]) for c in m["cols"]] for r in m["rows"]]
+    rows = [[r] + [mean_std(*m["cells"][(r, c)][:2]) for c in m["cols"]] for r in m["rows"]]
     table = markdown_table(["LL \\ HL"] + m["cols"], rows)
     with rundir.claim(out, "eval", reuse=True):
       png = plots.heatmap(m, out / f"matrix_{task}.png")
@@ -566,8 +569,8 @@ def cmd_eval(args) -> int:
     raise CLIError("give --high RUN and --low RUN (or several NAME=RUN of each for a matrix), or --policy RUN")
   seeds = None if args.seeds is None else list(range(_seeds(args)))
   ev = evaluate(pol, task, episodes=args.episodes, seeds=seeds, backend=args.backend, **overrides)
-  rows = [[k.removesuffix("_mean"), fmt(ev[k], ev[k.replace("_mean", "_std")]),
-           ", ".join(f"{x:.3g}" for x in ev["per_seed"][k.removesuffix("_mean")])]
+  rows = [[k.removesuffix("_mean"), mean_std(ev[k], ev[k.replace("_mean", "_std")]),
+           ", ".join(number(x) for x in ev["per_seed"][k.removesuffix("_mean")])]
           for k in ev if k.endswith("_mean")]
   print(markdown_table(["metric", "mean ± std over seeds", "per seed"], rows))
   print("parameters: " + ", ".join(f"{k.replace('_', ' ')} {ev[k]}" for k in ("params", "low_params") if k in ev))
@@ -682,7 +685,7 @@ def _stage_value(args, name: str, disc):
 def _sweep(args, lv, grid: dict, root: Path, seeds: int, overrides: dict, disc) -> list:
   import numpy as np
   from hdt.envs.tasks import get_task
-  from hdt.report import fmt
+  from hdt.numfmt import mean_std
   from hdt.transfer import checkpoint as ckpt
   from hdt.transfer import sweep
   from hdt.transfer.card import PolicyCard
@@ -714,7 +717,7 @@ def _sweep(args, lv, grid: dict, root: Path, seeds: int, overrides: dict, disc) 
   rows = []
   for name, (_, out, _), res in zip(names, runs, results):
     final = res.history[metric][:, -1]
-    rows.append([name, metric[5:], fmt(np.mean(final), np.std(final)), str(out)])
+    rows.append([name, metric[5:], mean_std(np.mean(final), np.std(final)), str(out)])
   return rows
 
 
@@ -796,7 +799,8 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   import json
 
   from hdt import atomic
-  from hdt.report import fmt, markdown_table, run_report
+  from hdt.numfmt import mean_std
+  from hdt.report import markdown_table, run_report
   from hdt.transfer import zoo
   from hdt.transfer.evaluate import compose, evaluate, random_actions
   from hdt.transfer.pipeline import train_high, train_low
@@ -814,7 +818,7 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
   print(f"\n1. Trained here: point-mass LL ({pm['total_env_steps']} steps) and Waypoint HL "
         f"({hl['total_env_steps']} decisions), {seeds} seeds x {episodes} episodes\n")
   print(markdown_table(["task", "HL", "LL", "hdt", "paper (full budget)"],
-                       [["waypoint", "PM HL", "PM LL", fmt(own["return_mean"], own["return_std"]), "1021 ± 43"]]))
+                       [["waypoint", "PM HL", "PM LL", mean_std(own["return_mean"], own["return_std"]), "1021 ± 43"]]))
   rows, table = [], []
   available = set(zoo.entry_names())
   for task, label, hl_run, ll_run, random, paper in _quickstart_transfers():
@@ -825,7 +829,7 @@ def _quickstart(args, root: Path, seeds: int, quiet: bool) -> int:
     policy = compose(high.run_dir if hl_run == "here" else hl_run, ll_run, box="scale")
     ev = evaluate(random_actions(policy) if random else policy, task, episodes=episodes)
     metric = ev["metric"]  # the task's headline (Task.headline)
-    value = fmt(ev[f"{metric}_mean"], ev[f"{metric}_std"])
+    value = mean_std(ev[f"{metric}_mean"], ev[f"{metric}_std"])
     rows.append([task, metric, label, ll_run, value, paper])
     table.append(dict(task=task, metric=metric, high=label, low=ll_run, mean=ev[f"{metric}_mean"],
                       std=ev[f"{metric}_std"], episodes=episodes, seeds=len(ev["seeds"]), paper=paper))

@@ -14,6 +14,7 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hdt import atomic  # noqa: E402
+from hdt.numfmt import number  # noqa: E402
 
 
 def _save(fig, path) -> Path:
@@ -94,7 +95,7 @@ def _curves(fig, ax, series, hline=None, title="", xlabel="env steps of B", ylab
   styles = (("--", "purple"), (":", "black"), ("-.", "grey"), ((0, (5, 1, 1, 1)), "brown"))
   for i, (name, v) in enumerate((hline or {}).items()):
     ls, color = styles[i % len(styles)]
-    ax.axhline(v, ls=ls, color=color, lw=1, label=f"{name} ({v:.3g})")
+    ax.axhline(v, ls=ls, color=color, lw=1, label=f"{name} ({number(v)})")
   ax.set(title=title, xlabel=xlabel, ylabel=ylabel)
   if ylim is not None:
     ax.set_ylim(*ylim)
@@ -114,7 +115,7 @@ def _heatmap(fig, ax, matrix, title="", xlabel="HL trained on", ylabel="LL of"):
   mid = np.nanmean(mean) if np.isfinite(mean).any() else 0.0
   for i, r in enumerate(rows):
     for j, c in enumerate(cols):
-      text = f"{mean[i, j]:.3g}\n±{std[i, j]:.2g}" if np.isfinite(mean[i, j]) else "not run"
+      text = f"{number(mean[i, j])}\n±{number(std[i, j], 2)}" if np.isfinite(mean[i, j]) else "not run"
       if paper.get((r, c)):
         text += f"\n(paper {paper[(r, c)]})"
       ax.text(j, i, text, ha="center", va="center", fontsize=8,

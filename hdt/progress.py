@@ -20,6 +20,8 @@ from rich.console import Console
 from rich.jupyter import JUPYTER_HTML_FORMAT, JupyterRenderable
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
+from hdt.numfmt import number
+
 EVALS = ("eval/return", "eval/success_max", "eval/goal_dist")  # shown, as return=... success_max=...
 NOTEBOOK_EVERY = 1.0  # seconds between redraws of a notebook's bar (each is a message to the browser)
 
@@ -49,7 +51,7 @@ class RunProgress:
     if self.mode == "quiet":
       return
     rate = (step - self.start) / max(time.perf_counter() - self.t0, 1e-9)
-    evals = " ".join(f"{k[5:]}={float(np.mean(v)):.3g}" for k, v in metrics.items() if k in EVALS)
+    evals = " ".join(f"{k[5:]}={number(float(np.mean(v)))}" for k, v in metrics.items() if k in EVALS)
     if self.mode == "live":
       self._live(step, rate, evals)
     elif self.mode == "notebook":

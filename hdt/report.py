@@ -10,14 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from hdt import atomic
+from hdt.numfmt import mean_std, number
 from hdt.transfer import checkpoint as ckpt
 
 # Evaluation metrics worth a curve, in the order they are shown; (csv column, label).
 CURVE_METRICS = (("eval/success_max", "success"), ("eval/return", "return"), ("eval/goal_dist", "final goal distance"))
-
-
-def fmt(mean: float, std: float) -> str:
-  return f"{mean:.3g} ± {std:.2g}"
 
 
 def markdown_table(header: list[str], rows: list[list]) -> str:
@@ -122,8 +119,8 @@ def _write_report(run_dir: Path, meta: dict, curves: dict, out: Path, trajectory
       continue
     steps, y = curves[col]
     final = y[:, -1]
-    rows.append([label, fmt(final.mean(), final.std()), ", ".join(f"{v:.3g}" for v in final),
-                 f"{y[:, 0].mean():.3g}"])
+    rows.append([label, mean_std(final.mean(), final.std()), ", ".join(number(v) for v in final),
+                 number(y[:, 0].mean())])
     png = plots.learning_curves({meta.get("level", "run"): (steps, y)}, out / f"curve_{label.replace(' ', '_')}.png",
                                 title=what, xlabel="env steps" + (" (HL decisions)" if meta.get("level") == "high" else ""),
                                 ylabel=label)
@@ -155,7 +152,7 @@ def _trajectory_section(run_dir: Path, meta: dict, out: Path) -> str:
   png = plots.trajectory(traj, model, out / "trajectory.png",
                          title=f"{meta['task']}: HL seed 0 driving {lc.agent}'s LL")
   ret = float(np.sum(traj["rewards"]))
-  return f"One deterministic episode (return {ret:.3g}):\n\n![trajectory]({png.name})"
+  return f"One deterministic episode (return {number(ret)}):\n\n![trajectory]({png.name})"
 
 
 VIDEOS = ("clip.mp4", "clip.gif")  # a report's clip: MP4, or GIF where no MP4 encoder works

@@ -1,0 +1,14 @@
+"""How hdt writes a number for people: a few significant digits, and whole numbers once the digits run out
+(a Waypoint return of 1004.9 reads 1005, not 1e+03)."""
+
+from __future__ import annotations
+
+
+def number(x: float, digits: int = 3) -> str:
+  """``x`` to ``digits`` significant digits; from ``10**digits`` up, rounded to a whole number."""
+  return f"{x:.0f}" if abs(x) >= 10 ** digits else f"{x:.{digits}g}"
+
+
+def mean_std(mean: float, std: float) -> str:
+  """``mean ± std`` as hdt's tables show it."""
+  return f"{number(mean)} ± {number(std, 2)}"
