@@ -125,6 +125,9 @@ HDT_CONFIGS = {
     # the same with the actor and temperature stepping every second update (the ant LL's delayed actor)
     "e8_u32_b64_norm_pd2": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True,
                                 policy_delay=2),
+    # the same bootstrapping through the 50-step time limit (hdt's default before it took the authors' terminal ends)
+    "e8_u32_b64_norm_btl": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True,
+                                bootstrap_time_limits=True),
     "e8_u64_b64_norm": dict(num_envs=8, updates_per_step=64, batch_size=64, normalize_observations=True),
     "e8_u32_b128_norm": dict(num_envs=8, updates_per_step=32, batch_size=128, normalize_observations=True),
     "e16_u64_b64_norm": dict(num_envs=16, updates_per_step=64, batch_size=64, normalize_observations=True),
