@@ -122,9 +122,6 @@ HDT_CONFIGS = {
     "e8_u16_b64_norm": dict(num_envs=8, updates_per_step=16, batch_size=64, normalize_observations=True),
     # UTD 4: chosen on seeds 0-2 (BENCHMARKS.md, "Time to quality"); UTD 8 and batch 128 cost more than they saved.
     "e8_u32_b64_norm": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True),
-    # the same with the actor and temperature stepping every second update (the ant LL's delayed actor)
-    "e8_u32_b64_norm_pd2": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True,
-                                policy_delay=2),
     # the same bootstrapping through the 50-step time limit (hdt's default before it took the authors' terminal ends)
     "e8_u32_b64_norm_btl": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True,
                                 bootstrap_time_limits=True),
