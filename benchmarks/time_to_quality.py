@@ -54,6 +54,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
+from hdt import atomic  # noqa: E402
 from hdt.agents import networks as nets  # noqa: E402
 from hdt.cache import enable_compile_cache  # noqa: E402
 from hdt.agents.sharding import use_cpu_cores  # noqa: E402
@@ -244,19 +245,12 @@ def shown_args(args) -> dict:
 
 
 def save_sbx(path, model, curve):
-  """Writes a stopped SBX run to ``path`` whole or not at all: into a sibling directory, then renamed."""
-  tmp = path + ".partial"
-  shutil.rmtree(tmp, ignore_errors=True)
-  os.makedirs(tmp)
-  model.save(os.path.join(tmp, "model.zip"))
-  model.save_replay_buffer(os.path.join(tmp, "replay.pkl"))
-  with open(os.path.join(tmp, "curve.json"), "w") as f:
-    json.dump(curve, f)
-  old = path + ".old"
-  if os.path.exists(path):
-    os.replace(path, old)
-  os.replace(tmp, path)
-  shutil.rmtree(old, ignore_errors=True)
+  """Writes a stopped SBX run to ``path`` whole or not at all (hdt's atomic directory swap)."""
+  def write(tmp):
+    model.save(tmp / "model.zip")
+    model.save_replay_buffer(tmp / "replay.pkl")
+    (tmp / "curve.json").write_text(json.dumps(curve))
+  atomic.replace_dir(path, write)
 
 
 def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log, metric="dist",
@@ -268,7 +262,8 @@ def run_sbx(agent, hp, seed, thresholds, eval_every, max_steps, max_seconds, epi
   return sbx_loop(f"sbx {algo} {agent}", lambda: ReachGymEnv(env, seed=seed), hp, seed,
                   lambda act: make_evaluator(env, act, episodes, metric), thresholds,
                   eval_every, max_steps, max_seconds, log, t0, higher=metric == "success", metric_name=metric,
-                  algo=algo, keep=keep and os.path.join(keep, f"{agent}_{algo}_seed{seed}"), resume=resume)
+                  algo=algo, keep=None if keep is None else os.path.join(keep, f"{agent}_{algo}_seed{seed}"),
+                  resume=resume)
 
 
 def sbx_loop(label, make_genv, hp, seed, make_eval, thresholds, eval_every, max_steps, max_seconds,
