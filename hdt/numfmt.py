@@ -5,8 +5,10 @@ from __future__ import annotations
 
 
 def number(x: float, digits: int = 3) -> str:
-  """``x`` to ``digits`` significant digits; from ``10**digits`` up, rounded to a whole number."""
-  return f"{x:.0f}" if abs(x) >= 10 ** digits else f"{x:.{digits}g}"
+  """``x`` to ``digits`` significant digits; where that would need an exponent of ``digits`` or more
+  (1004.9, or 999.7 rounding up), a whole number instead."""
+  short = f"{x:.{digits}g}"
+  return f"{x:.0f}" if "e+" in short else short
 
 
 def mean_std(mean: float, std: float) -> str:

@@ -8,6 +8,7 @@ def test_a_return_past_a_thousand_reads_whole_not_in_e_notation():
   assert mean_std(1004.87, 75.0) == "1005 ± 75"
   assert mean_std(-82.3, 128.6) == "-82.3 ± 129"
   assert number(1126.1) == "1126"
+  assert mean_std(999.7, 99.7) == "1000 ± 100"  # rounding up to the next power of ten
 
 
 def test_rates_keep_three_significant_digits():
