@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from hdt import atomic
+from hdt.numfmt import number
 from hdt.agents import normalizer
 from hdt.envs.robot import agent_spec
 from hdt.transfer import checkpoint as ckpt
@@ -334,6 +335,6 @@ def table() -> str:
     ev = e["evaluation"]
     succ = f"{ev['success_mean']:.2f} ± {ev['success_std']:.2f}" if "success_mean" in ev else "-"
     rows.append(f"{e['name']} | {e['level']} | {e['agent']} | {e['task']} | {e['budget']['total']} "
-                f"{e['budget']['unit']} | {ev.get('params', '?')} | {ev['return_mean']:.4g} ± {ev['return_std']:.2g} | "
+                f"{e['budget']['unit']} | {ev.get('params', '?')} | {number(ev['return_mean'], 4)} ± {number(ev['return_std'], 2)} | "
                 f"{succ} | {len(e['seeds'] or [])} | {keeps(e)}")
   return "\n".join(rows)
