@@ -33,8 +33,9 @@ deterministic LL in a ``lax.scan`` and carries the summed Waypoint reward (-0.1 
 loop (``make_train``, as ``hdt.train_high`` does). SBX trains on ``make_gym_env(env)``: a one-env
 gymnasium wrapper of the SAME env object, ``jax.jit`` of its single-env ``reset`` / ``step``, numpy in
 and out, obs = the HL features hdt's SAC sees, reward = the summed task reward, terminated = hdt's
-``done`` with discount 0, truncated = ``done`` with discount 1 (the 50-step limit; SB3 bootstraps
-through it, as hdt's discount 1 does), and after an episode ``reset()`` continues from hdt's
+``done`` with discount 0, truncated = ``done`` with discount 1 (the time limit, 50 or 60 HL steps; SB3
+bootstraps through it, as hdt does with ``bootstrap_time_limits``; ``--sbx-time-limits terminal``
+reports it as terminated instead, the authors' SB2 rule and hdt's default), and after an episode ``reset()`` continues from hdt's
 auto-reset state, as hdt's training envs do. There is no numpy port of an HL env a reference user
 would write instead (the frozen LL is a JAX policy), so SBX pays hdt's own jitted env cost per step
 (one dispatch and device-to-host copy per HL step; its LL loop ends at the env's own stopping step,
@@ -115,6 +116,8 @@ TASKS = {
 }
 # hdt settings: SACConfig overrides on top of configs.high_config (paper network, lr, batch 64).
 HDT_CONFIGS = {
+    "e1_u1_b64": dict(num_envs=1, updates_per_step=1, batch_size=64),  # the paper's: SB2's one env, UTD 1
+    "e1_u1_b64_btl": dict(num_envs=1, updates_per_step=1, batch_size=64, bootstrap_time_limits=True),
     "e8_u8_b64": dict(num_envs=8, updates_per_step=8, batch_size=64),  # UTD 1, the cpu preset
     "e16_u4_b128": dict(num_envs=16, updates_per_step=4, batch_size=128),  # UTD 1/4
     "e8_u16_b64": dict(num_envs=8, updates_per_step=16, batch_size=64),  # UTD 2
@@ -173,9 +176,10 @@ def make_hl_evaluator(env, policy_fn, episodes: int, metric: str = "return"):
   return jax.jit(evaluate)
 
 
-def make_gym_env(env, seed: int | None = None):
+def make_gym_env(env, seed: int | None = None, terminal_time_limits: bool = False):
   """hdt's HL env ``env`` as a one-env gymnasium env ("HLGymEnv": jitted single-env reset / step,
-  numpy in and out; obs / reward / termination rules in the module docstring)."""
+  numpy in and out; obs / reward / termination rules in the module docstring). With
+  ``terminal_time_limits`` a time-limit end is reported as terminated, so SB3 stores it as SB2 did."""
   import gymnasium as gym
 
   class _HLGymEnv(gym.Env):
@@ -216,7 +220,7 @@ def make_gym_env(env, seed: int | None = None):
       self._state, out = self._step(self._state, jnp.asarray(action, jnp.float32))
       next_obs, reward, done, discount, obs = jax.device_get(out)
       done = bool(done > 0)
-      terminated = done and bool(discount == 0)
+      terminated = done and (terminal_time_limits or bool(discount == 0))
       if done:
         self._after_done = np.asarray(obs, np.float32)
       return np.asarray(next_obs, np.float32), float(reward), terminated, done and not terminated, {}
@@ -240,15 +244,18 @@ def run_hdt(task, low_dir, overrides, seeds, thresholds, eval_every, max_steps, 
                             higher=True, metric_name=metric)
 
 
-def run_sbx(task, low_dir, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log):
+def run_sbx(task, low_dir, hp, seed, thresholds, eval_every, max_steps, max_seconds, episodes, log,
+            terminal_time_limits=False):
   env = pipeline.high_env(task, low_dir)  # evaluator's env; the gym wrapper (built inside the clock) wraps it too
   t0 = time.perf_counter()
   metric = TASKS[task]["metric"]
   make_eval = lambda act: make_hl_evaluator(env, act, episodes, metric)
   genv = []
-  res = ttq.sbx_loop("sbx HL", lambda: genv.append(make_gym_env(env, seed=seed)) or genv[0], hp, seed,
+  make = lambda: genv.append(make_gym_env(env, seed, terminal_time_limits)) or genv[0]
+  res = ttq.sbx_loop("sbx HL", make, hp, seed,
                      make_eval, thresholds, eval_every, max_steps, max_seconds, log, t0, higher=True,
                      metric_name=metric)
+  res["terminal_time_limits"] = terminal_time_limits
   res["env_compile_s"] = genv[0].compile_s  # inside SBX's clock: hdt's HL env step, jitted for 1 env
   log(f"    sbx HL seed {seed}: of which compiling the wrapped env's reset/step {genv[0].compile_s:.1f}s")
   return res
@@ -342,6 +349,9 @@ def main():
   ap.add_argument("--first-seed", type=int, default=0,
                   help="run seeds first..first+seeds-1; with --skip-hdt (--skip-sbx) they join the SBX (hdt) "
                        "runs already in --out, replacing any run of the same seed")
+  ap.add_argument("--sbx-time-limits", choices=("truncated", "terminal"), default="truncated",
+                  help="how SBX stores a time-limit end: truncated (SB3 bootstraps through it) or terminal "
+                       "(no bootstrap, as SB2 and hdt's default)")
   ap.add_argument("--threshold", type=float, help="override the threshold (mean return or success rate)")
   ap.add_argument("--extra-thresholds", help="override the extra thresholds (comma-separated)")
   ap.add_argument("--eval-every", type=int, help="override the evaluation period (HL env steps)")
@@ -416,7 +426,7 @@ def main():
         seeds, args.vmapped_seeds)
   if not args.skip_sbx:
     runs = [run_sbx(args.task, args.low_run, task["sbx"], s, thrs, every, cap, 60 * args.sbx_max_minutes,
-                    args.eval_episodes, log) for s in seeds]
+                    args.eval_episodes, log, args.sbx_time_limits == "terminal") for s in seeds]
     res["sbx"] = dict(runs=runs)
   if os.path.exists(args.out) and (args.skip_sbx or args.skip_hdt):  # merge with the other half
     with open(args.out) as f:
