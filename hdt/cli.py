@@ -562,8 +562,10 @@ def cmd_eval(args) -> int:
       _write_json(out / f"matrix_{task}.json", dict(task=task, rows=m["rows"], cols=m["cols"],
                   cells={f"{r}|{c}": v for (r, c), v in m["cells"].items()},
                   params={f"{r}|{c}": dict(zip(("params", "low_params"), v)) for (r, c), v in m["params"].items()}))
-    print(table + f"\n\nparameters: HL {args.params}, LL {args.low_params} (see {out / f'matrix_{task}.json'})"
-          f"\nheatmap: {png}")
+    # what was used, which differs from what was asked where an entry keeps one set (zoo --params final)
+    used = sorted(set(m["params"].values()))
+    shown = (f"HL {used[0][0]}, LL {used[0][1]}" if len(used) == 1 else "per cell")
+    print(table + f"\n\nparameters: {shown} (see {out / f'matrix_{task}.json'})\nheatmap: {png}")
     return 0
   else:
     raise CLIError("give --high RUN and --low RUN (or several NAME=RUN of each for a matrix), or --policy RUN")

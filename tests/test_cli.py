@@ -80,12 +80,22 @@ def test_eval_of_best_params_says_so(runs, capsys):
     assert f"parameters: params {which}, low params best" in capsys.readouterr().out
 
 
-def test_eval_matrix_writes_heatmap(runs):
+def test_eval_matrix_writes_heatmap(runs, capsys):
   out = runs / "matrix"
   assert main(["eval", "--high", f"pm={runs / 'high'}", "--high", f"pm2={runs / 'high'}", "--low", f"pm={runs / 'low'}",
-               "--episodes", "2", "--out", str(out)]) == 0
+               "--episodes", "2", "--params", "best", "--out", str(out)]) == 0
   m = json.loads((out / "matrix_waypoint.json").read_text())
   assert set(m["cells"]) == {"pm|pm", "pm|pm2"}
+  assert {tuple(v.values()) for v in m["params"].values()} == {("best", "best")}
+  assert "parameters: HL best, LL best" in capsys.readouterr().out
+  # a zoo LL keeps one set of params (zoo:arm_point/low its final ones): the printed parameters are the ones
+  # the cells used, not the ones asked for (--low-params best by default)
+  zoo_out = runs / "matrix_zoo"
+  assert main(["eval", "--high", "a=zoo:arm_point/push1", "--high", "b=zoo:arm_point/push1", "--low",
+               "pm=zoo:arm_point/low", "--task", "push1", "--episodes", "1", "--out", str(zoo_out)]) == 0
+  zm = json.loads((zoo_out / "matrix_push1.json").read_text())
+  used = {tuple(v.values()) for v in zm["params"].values()}
+  assert len(used) == 1 and "parameters: HL {}, LL {}".format(*used.pop()) in capsys.readouterr().out
   assert m["cells"]["pm|pm"][0] == m["cells"]["pm|pm2"][0]  # same runs, same episodes
   assert (out / "matrix_waypoint.png").stat().st_size > 5000
 
