@@ -35,8 +35,8 @@ gymnasium wrapper of the SAME env object, ``jax.jit`` of its single-env ``reset`
 and out, obs = the HL features hdt's SAC sees, reward = the summed task reward, terminated = hdt's
 ``done`` with discount 0, truncated = ``done`` with discount 1 (the time limit, 50 or 60 HL steps; SB3
 bootstraps through it, as hdt does with ``bootstrap_time_limits``; ``--sbx-time-limits terminal``
-reports it as terminated instead, the authors' SB2 rule and hdt's default), and after an episode ``reset()`` continues from hdt's
-auto-reset state, as hdt's training envs do. There is no numpy port of an HL env a reference user
+reports it as terminated instead, the authors' SB2 rule and hdt's default), and after an episode
+``reset()`` continues from hdt's auto-reset state, as hdt's training envs do. There is no numpy port of an HL env a reference user
 would write instead (the frozen LL is a JAX policy), so SBX pays hdt's own jitted env cost per step
 (one dispatch and device-to-host copy per HL step; its LL loop ends at the env's own stopping step,
 as the authors' does) plus its own learning. ``--check`` steps hdt's
@@ -125,7 +125,7 @@ HDT_CONFIGS = {
     "e8_u16_b64_norm": dict(num_envs=8, updates_per_step=16, batch_size=64, normalize_observations=True),
     # UTD 4: chosen on seeds 0-2 (BENCHMARKS.md, "Time to quality"); UTD 8 and batch 128 cost more than they saved.
     "e8_u32_b64_norm": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True),
-    # the same bootstrapping through the 50-step time limit (hdt's default before it took the authors' terminal ends)
+    # the same bootstrapping through the time limit (hdt's default before it took the authors' terminal ends)
     "e8_u32_b64_norm_btl": dict(num_envs=8, updates_per_step=32, batch_size=64, normalize_observations=True,
                                 bootstrap_time_limits=True),
     "e8_u64_b64_norm": dict(num_envs=8, updates_per_step=64, batch_size=64, normalize_observations=True),

@@ -88,6 +88,8 @@ def test_eval_matrix_writes_heatmap(runs, capsys):
   assert set(m["cells"]) == {"pm|pm", "pm|pm2"}
   assert {tuple(v.values()) for v in m["params"].values()} == {("best", "best")}
   assert "parameters: HL best, LL best" in capsys.readouterr().out
+  assert m["cells"]["pm|pm"][0] == m["cells"]["pm|pm2"][0]  # same runs, same episodes
+  assert (out / "matrix_waypoint.png").stat().st_size > 5000
   # a zoo LL keeps one set of params (zoo:arm_point/low its final ones): the printed parameters are the ones
   # the cells used, not the ones asked for (--low-params best by default)
   zoo_out = runs / "matrix_zoo"
@@ -96,8 +98,6 @@ def test_eval_matrix_writes_heatmap(runs, capsys):
   zm = json.loads((zoo_out / "matrix_push1.json").read_text())
   used = {tuple(v.values()) for v in zm["params"].values()}
   assert len(used) == 1 and "parameters: HL {}, LL {}".format(*used.pop()) in capsys.readouterr().out
-  assert m["cells"]["pm|pm"][0] == m["cells"]["pm|pm2"][0]  # same runs, same episodes
-  assert (out / "matrix_waypoint.png").stat().st_size > 5000
 
 
 def test_existing_run_is_not_overwritten(runs, capsys):
